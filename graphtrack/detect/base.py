@@ -1,0 +1,98 @@
+"""What detectors return and what estimators consume.
+
+All pixel coordinates here are UNDISTORTED pixels of the left camera (the
+tracking loop undistorts each raw frame once before detection). Lines follow
+:mod:`graphtrack.geometry.lines`: cos(theta) x + sin(theta) y = rho.
+
+Vocabulary of the method:
+- segments: candidate line segments (x1, y1, x2, y2);
+- heatmap H in [0, 1]^{H x W}: the line heatmap (the learned detector's
+  output; for Canny, the binary edge map);
+- shaft edges: the (at most two) segments associated with the insertion
+  shaft's two silhouette lines, endpoints e^a_{1,2}, e^b_{1,2};
+- endpoint set E_e(e) = {p : |p - e| <= alpha, H(p) >= beta};
+- line set E_l(e^a, e^b) = {p : dist(p, segment) <= alpha, H(p) >= beta};
+- markers: painted-marker blob centroids.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+#: The method's six observation models (``--observation``).
+OBSERVATION_MODELS = (
+    "canny",
+    "endpoints-polar",
+    "endpoint-intensities-polar",
+    "line-intensities-polar",
+    "endpoint-intensities",
+    "line-intensities",
+)
+#: Which of them score in line-parameter space (rho, theta); the rest score pixels.
+POLAR_MODELS = ("canny", "endpoints-polar", "endpoint-intensities-polar", "line-intensities-polar")
+
+
+def _empty(*shape) -> np.ndarray:
+    return np.zeros((0,) + shape, dtype=float)
+
+
+@dataclass
+class Detection:
+    """One frame's detector output (undistorted pixels).
+
+    segments: (S, 4) all candidate segments.
+    heatmap: (H, W) float32 line heatmap in [0, 1] or None.
+    shaft_segments: (k, 4), k in {0, 1, 2}: segments associated with the
+        shaft's edges, endpoints (x1, y1, x2, y2).
+    shaft_lines: (k, 2) (rho, theta) of those edges.
+    markers: (M, 2) marker centroids.
+    ms: milliseconds the detector spent.
+    """
+
+    segments: np.ndarray = field(default_factory=lambda: _empty(4))
+    heatmap: np.ndarray | None = None
+    shaft_segments: np.ndarray = field(default_factory=lambda: _empty(4))
+    shaft_lines: np.ndarray = field(default_factory=lambda: _empty(2))
+    markers: np.ndarray = field(default_factory=lambda: _empty(2))
+    ms: float = 0.0
+
+
+@dataclass
+class Observation:
+    """What an estimator consumes for one frame, built from a Detection by
+    :func:`graphtrack.detect.observe.make_observation` for one observation model.
+
+    model: one of OBSERVATION_MODELS.
+    lines: (k, 2) detected shaft lines (rho, theta) for the polar models
+        (empty for the pixel models).
+    pixels: per detected shaft edge, an (m_i, 2) pixel set (E_e or E_l) for the
+        pixel models (empty list for the polar models).
+    markers: (M, 2) detected marker centroids (empty when markers are off).
+    """
+
+    model: str
+    lines: np.ndarray = field(default_factory=lambda: _empty(2))
+    pixels: list[np.ndarray] = field(default_factory=list)
+    markers: np.ndarray = field(default_factory=lambda: _empty(2))
+
+    @property
+    def has_shaft(self) -> bool:
+        return len(self.lines) > 0 or any(len(p) > 0 for p in self.pixels)
+
+    @property
+    def empty(self) -> bool:
+        return not self.has_shaft and len(self.markers) == 0
+
+
+class Detector(Protocol):
+    """Per-frame shaft and marker detector on undistorted images."""
+
+    name: str
+
+    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None) -> Detection:
+        """image: undistorted BGR uint8 (H, W, 3). predicted_lines: (2, 2)
+        (rho, theta) of the shaft edges projected from the current estimate of
+        E, used to gate the association (None: no gate)."""
+        ...  # pragma: no cover - protocol

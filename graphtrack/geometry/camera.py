@@ -1,0 +1,206 @@
+"""Pinhole camera with OpenCV's plumb-bob distortion, and camera_calibration.yaml.
+
+Projection of a point X = (X, Y, Z) in the camera frame (metres):
+
+    x = X / Z,  y = Y / Z                               (unit camera)
+    r^2 = x^2 + y^2
+    x_d = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)
+    y_d = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y
+    raw pixel         = (fx x_d + cx, fy y_d + cy)
+    undistorted pixel = (fx x + cx,   fy y + cy)
+
+"Undistorted pixels" are the pixels of the undistorted image, which keeps the
+same K (``cv2.initUndistortRectifyMap(K, D, None, K, ...)``); every detector
+and every line (rho, theta) lives there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from graphtrack.errors import InputError
+
+
+@dataclass
+class Camera:
+    """K: 3x3 intrinsics (px); dist: (k1, k2, p1, p2, k3); image size in px."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    height: int
+    width: int
+    _maps: tuple | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def diagonal(self) -> float:
+        """Image diagonal (px), the unit of the method's % errors."""
+        return float(np.hypot(self.height, self.width))
+
+    # -- projection -----------------------------------------------------------------
+    def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
+        """Apply plumb-bob distortion to unit-camera coordinates (..., 2)."""
+        xy = np.asarray(xy, float)
+        k1, k2, p1, p2, k3 = (list(np.ravel(self.dist)) + [0.0] * 5)[:5]
+        x, y = xy[..., 0], xy[..., 1]
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        return np.stack([xd, yd], -1)
+
+    def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, float)
+        return np.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], -1)
+
+    def pixels_to_normalized(self, uv: np.ndarray) -> np.ndarray:
+        uv = np.asarray(uv, float)
+        return np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy], -1)
+
+    def project_undistorted(self, points: np.ndarray) -> np.ndarray:
+        """Camera-frame points (..., 3) -> undistorted pixels (..., 2)."""
+        p = np.asarray(points, float)
+        return self.normalized_to_pixels(p[..., :2] / p[..., 2:3])
+
+    def project_raw(self, points: np.ndarray) -> np.ndarray:
+        """Camera-frame points (..., 3) -> raw (distorted) pixels (..., 2)."""
+        p = np.asarray(points, float)
+        return self.normalized_to_pixels(self.distort_normalized(p[..., :2] / p[..., 2:3]))
+
+    def distort_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted pixels (..., 2) -> raw pixels (..., 2)."""
+        return self.normalized_to_pixels(self.distort_normalized(self.pixels_to_normalized(uv)))
+
+    def undistort_pixels(self, uv: np.ndarray) -> np.ndarray:
+        """Raw pixels (N, 2) -> undistorted pixels (N, 2) (OpenCV's iterative inverse)."""
+        uv = np.asarray(uv, float).reshape(-1, 1, 2)
+        if len(uv) == 0:
+            return np.zeros((0, 2))
+        out = cv2.undistortPoints(uv, self.K, self.dist, P=self.K,
+                                  criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
+        return out.reshape(-1, 2)
+
+    # -- images ---------------------------------------------------------------------
+    def undistort_maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """Remap tables raw -> undistorted, computed once per camera (fixed-point maps)."""
+        if self._maps is None:
+            self._maps = cv2.initUndistortRectifyMap(
+                self.K, self.dist, None, self.K, (self.width, self.height), cv2.CV_16SC2)
+        return self._maps
+
+    def undistort(self, image: np.ndarray) -> np.ndarray:
+        """Raw image -> undistorted image with the same K and size (bilinear)."""
+        m1, m2 = self.undistort_maps()
+        return cv2.remap(image, m1, m2, cv2.INTER_LINEAR)
+
+    def scaled(self, s: float) -> "Camera":
+        """The same camera for images resized by factor s (K scaled, distortion kept)."""
+        K = self.K.copy()
+        K[0, 0] *= s
+        K[1, 1] *= s
+        K[0, 2] = (K[0, 2] + 0.5) * s - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * s - 0.5
+        return Camera(K, self.dist.copy(), int(round(self.height * s)), int(round(self.width * s)))
+
+
+@dataclass
+class Calibration:
+    """camera_calibration.yaml: the left camera, and the right one for stereo.
+
+    R: right-from-left rotation; T: right-from-left translation in METRES
+    (converted from the file's millimetres).
+    """
+
+    left: Camera
+    right: Camera | None = None
+    R: np.ndarray | None = None
+    T: np.ndarray | None = None
+
+
+def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
+    if key not in doc:
+        raise InputError(f"{path}: missing key '{key}'")
+    v = doc[key]
+    if isinstance(v, dict):
+        if "data" not in v:
+            raise InputError(f"{path}: key '{key}' has no 'data' field")
+        v = v["data"]
+    try:
+        a = np.asarray(v, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: key '{key}' is not a list of numbers") from None
+    if a.size != n and not (key.startswith("D") and a.size in (4, 5, 8)):
+        raise InputError(f"{path}: key '{key}' has {a.size} values, expected {n}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{path}: key '{key}' holds NaN or infinite values")
+    return a
+
+
+def load_calibration(path: str | Path) -> Calibration:
+    """Read camera_calibration.yaml (format doc); raise InputError naming file and key."""
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a mapping of keys")
+    size = _matrix(doc, "ImageSize", 2, path)
+    h, w = int(size[0]), int(size[1])
+    if h <= 0 or w <= 0:
+        raise InputError(f"{path}: ImageSize must be positive [height, width]")
+
+    def cam(kk: str, dk: str) -> Camera:
+        K = _matrix(doc, kk, 9, path).reshape(3, 3)
+        if K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise InputError(f"{path}: key '{kk}' has non-positive focal length")
+        D = _matrix(doc, dk, 5, path)
+        D5 = np.zeros(5)
+        D5[: min(5, D.size)] = D[:5]
+        return Camera(K, D5, h, w)
+
+    left = cam("K1", "D1")
+    if "K2" in doc:
+        right = cam("K2", "D2")
+        R = _matrix(doc, "R", 9, path).reshape(3, 3)
+        T = _matrix(doc, "T", 3, path) / 1000.0
+        return Calibration(left, right, R, T)
+    return Calibration(left)
+
+
+def save_calibration(path: str | Path, calib: Calibration) -> None:
+    """Write camera_calibration.yaml in the format doc's layout (T in mm)."""
+    import yaml
+
+    cam = calib.left
+    doc = {"ImageSize": [int(cam.height), int(cam.width)],
+           "K1": {"data": [float(v) for v in cam.K.ravel()]},
+           "D1": {"data": [float(v) for v in cam.dist.ravel()]}}
+    if calib.right is not None:
+        doc["K2"] = {"data": [float(v) for v in calib.right.K.ravel()]}
+        doc["D2"] = {"data": [float(v) for v in calib.right.dist.ravel()]}
+        doc["R"] = {"data": [float(v) for v in np.asarray(calib.R).ravel()]}
+        doc["T"] = [float(v) * 1000.0 for v in np.asarray(calib.T).ravel()]
+    Path(path).write_text(yaml.safe_dump(doc, default_flow_style=None, sort_keys=False))
