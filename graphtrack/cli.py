@@ -1,0 +1,57 @@
+"""The ``graphtrack`` command line: one subcommand per module in graphtrack/commands.
+
+Each command module defines ``add_parser(subparsers)`` (registering its
+arguments and ``set_defaults(func=run)``) and ``run(args) -> int``. Bad input
+(:class:`~graphtrack.errors.InputError`) is printed as one line and exits 2;
+no traceback reaches the user for it.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from graphtrack.errors import InputError
+
+#: Subcommands in the order ``--help`` lists them.
+COMMANDS = ("demo", "simulate", "track", "refine", "detect", "compare", "train")
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse's own usage errors: exit 2, one line
+        self.print_usage(sys.stderr)
+        self.exit(2, f"graphtrack: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="graphtrack", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"graphtrack.commands.{name}")
+        except ModuleNotFoundError as e:
+            if e.name == f"graphtrack.commands.{name}":
+                continue  # command not built yet
+            raise
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except InputError as e:
+        print(f"graphtrack: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("graphtrack: interrupted (results written so far are kept)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
