@@ -1,0 +1,303 @@
+"""The arm and tool: robot.json (the sequence format) and the dVRK's own config files.
+
+robot.json (../shared/docs/sequence-format.md) holds modified (Craig) DH
+parameters, one entry per joint, and the features the camera sees. Joint i's
+transform from frame i-1 to frame i is
+
+    T_i = RotX(alpha) TransX(A) RotZ(theta_i) TransZ(D_i)
+    revolute:  theta_i = theta + offset + q_i,  D_i = D
+    prismatic: theta_i = theta,                 D_i = D + offset + q_i
+
+Links are numbered from 1 (link k = frame after joint k). With a gripper the
+joint vector carries the jaw angle j after the n DH joints and links n+1, n+2
+are link n RotZ(+j/2) and link n RotZ(-j/2).
+
+The dVRK's configuration files (an arm file and a tool file, JSON with
+``// comments``, ``"DH": {"convention": "modified", "links"|"joints": [...]}``)
+are a second source, combined into one chain by :func:`load_dvrk_config`.
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from graphtrack.errors import InputError
+
+
+@dataclass(frozen=True)
+class DHJoint:
+    """One modified-DH joint: angles in rad, lengths in m."""
+
+    type: str  # "revolute" | "prismatic"
+    alpha: float
+    A: float
+    theta: float
+    D: float
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class PointFeature:
+    """A 3-D point (m) fixed to link ``link`` (a painted marker, the tool tip)."""
+
+    name: str
+    link: int
+    position: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class ShaftFeature:
+    """A cylinder fixed to a link: point on the centre line, direction, radius (m)."""
+
+    name: str
+    link: int
+    position: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    radius: float
+
+
+@dataclass(frozen=True)
+class SkeletonSegment:
+    """A segment between a point on link1 and a point on link2, for drawing only."""
+
+    link1: int
+    position1: tuple[float, float, float]
+    link2: int
+    position2: tuple[float, float, float]
+
+
+@dataclass
+class RobotDescription:
+    dh: list[DHJoint]
+    has_gripper: bool = False
+    point_features: list[PointFeature] = field(default_factory=list)
+    shaft_features: list[ShaftFeature] = field(default_factory=list)
+    skeleton: list[SkeletonSegment] = field(default_factory=list)
+    tool_tip: PointFeature | None = None
+    joint_limits: np.ndarray | None = None  # (n_joints, 2)
+
+    @property
+    def n_dh(self) -> int:
+        return len(self.dh)
+
+    @property
+    def n_joints(self) -> int:
+        """Length of the joint vector: the DH joints, plus the jaw with a gripper."""
+        return self.n_dh + (1 if self.has_gripper else 0)
+
+    @property
+    def n_links(self) -> int:
+        return self.n_dh + (2 if self.has_gripper else 0)
+
+    def to_json(self) -> dict:
+        """The robot.json document (format doc schema)."""
+        doc = {
+            "DH_params": [{"type": j.type, "alpha": j.alpha, "A": j.A, "theta": j.theta,
+                           "D": j.D, "offset": j.offset} for j in self.dh],
+            "has_gripper": self.has_gripper,
+            "point_features": [{"name": p.name, "link": p.link, "position": list(p.position)}
+                               for p in self.point_features],
+            "shaft_features": [{"name": s.name, "link": s.link, "position": list(s.position),
+                                "direction": list(s.direction), "radius": s.radius}
+                               for s in self.shaft_features],
+            "skeleton_structure": [{"link1": s.link1, "position1": list(s.position1),
+                                    "link2": s.link2, "position2": list(s.position2)}
+                                   for s in self.skeleton],
+        }
+        if self.tool_tip is not None:
+            doc["tool_tip"] = {"link": self.tool_tip.link, "position": list(self.tool_tip.position)}
+        if self.joint_limits is not None:
+            doc["joint_limits"] = [[float(a), float(b)] for a, b in self.joint_limits]
+        return doc
+
+
+# -- parsing helpers ------------------------------------------------------------------
+class _Doc:
+    """Typed access to a JSON object that names the file and field on error."""
+
+    def __init__(self, path: Path, where: str = ""):
+        self.path = path
+        self.where = where
+
+    def fail(self, field_: str, why: str):
+        raise InputError(f"{self.path}: {self.where}{field_}: {why}")
+
+    def get(self, obj: dict, key: str, kind=float, default=None, required=True):
+        if not isinstance(obj, dict):
+            self.fail(key, "expected an object")
+        if key not in obj:
+            if required and default is None:
+                self.fail(key, "missing key")
+            return default
+        v = obj[key]
+        try:
+            if kind is float:
+                if isinstance(v, bool):
+                    raise TypeError
+                out = float(v)
+                if not np.isfinite(out):
+                    self.fail(key, "not a finite number")
+                return out
+            if kind is int:
+                if isinstance(v, bool) or int(v) != v:
+                    raise TypeError
+                return int(v)
+            if kind == "vec3":
+                a = np.asarray(v, dtype=float)
+                if a.shape != (3,) or not np.all(np.isfinite(a)):
+                    raise TypeError
+                return tuple(float(x) for x in a)
+            if kind is bool:
+                if not isinstance(v, bool):
+                    raise TypeError
+                return v
+            if kind is str:
+                if not isinstance(v, str):
+                    raise TypeError
+                return v
+        except (TypeError, ValueError):
+            self.fail(key, f"expected {getattr(kind, '__name__', kind)}, got {v!r}")
+        return v
+
+
+def _dh_joint(d: _Doc, obj: dict, i: int, lower_keys: bool = False) -> DHJoint:
+    d.where = f"joint {i + 1}: "
+    typ = d.get(obj, "type", str)
+    if typ not in ("revolute", "prismatic"):
+        d.fail("type", f"expected 'revolute' or 'prismatic', got {typ!r}")
+    conv = obj.get("convention", "modified")
+    if conv != "modified":
+        d.fail("convention", f"only modified DH is supported, got {conv!r}")
+    keyA = "A" if "A" in obj or not lower_keys else "a"
+    keyD = "D" if "D" in obj or not lower_keys else "d"
+    j = DHJoint(typ, d.get(obj, "alpha"), d.get(obj, keyA), d.get(obj, "theta"), d.get(obj, keyD),
+                d.get(obj, "offset", default=0.0, required=False))
+    d.where = ""
+    return j
+
+
+def _links(n: int, has_gripper: bool) -> int:
+    return n + (2 if has_gripper else 0)
+
+
+def _check_link(d: _Doc, link: int, n_links: int, what: str):
+    if not 0 <= link <= n_links:
+        d.fail(what, f"link {link} does not exist (links are 0..{n_links})")
+
+
+def parse_robot(doc: dict, path: Path) -> RobotDescription:
+    """Build a RobotDescription from a parsed robot.json document."""
+    d = _Doc(path)
+    if not isinstance(doc, dict):
+        d.fail("document", "expected a JSON object")
+    raw = d.get(doc, "DH_params", list)
+    if not isinstance(raw, list) or not raw:
+        d.fail("DH_params", "expected a non-empty list of joints")
+    dh = [_dh_joint(d, o, i) for i, o in enumerate(raw)]
+    grip = d.get(doc, "has_gripper", bool, default=False, required=False)
+    n_links = _links(len(dh), grip)
+
+    points = []
+    for i, o in enumerate(doc.get("point_features", []) or []):
+        d.where = f"point_features[{i}]: "
+        p = PointFeature(str(o.get("name", f"point_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"))
+        _check_link(d, p.link, n_links, "link")
+        points.append(p)
+    shafts = []
+    for i, o in enumerate(doc.get("shaft_features", []) or []):
+        d.where = f"shaft_features[{i}]: "
+        s = ShaftFeature(str(o.get("name", f"shaft_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"),
+                         d.get(o, "direction", "vec3"), d.get(o, "radius"))
+        _check_link(d, s.link, n_links, "link")
+        if np.linalg.norm(s.direction) == 0 or s.radius <= 0:
+            d.fail("direction/radius", "direction must be non-zero and radius positive")
+        shafts.append(s)
+    skel = []
+    for i, o in enumerate(doc.get("skeleton_structure", []) or []):
+        d.where = f"skeleton_structure[{i}]: "
+        s = SkeletonSegment(d.get(o, "link1", int), d.get(o, "position1", "vec3"),
+                            d.get(o, "link2", int), d.get(o, "position2", "vec3"))
+        _check_link(d, s.link1, n_links, "link1")
+        _check_link(d, s.link2, n_links, "link2")
+        skel.append(s)
+    tip = None
+    if doc.get("tool_tip") is not None:
+        d.where = "tool_tip: "
+        o = doc["tool_tip"]
+        tip = PointFeature("tool_tip", d.get(o, "link", int), d.get(o, "position", "vec3"))
+        _check_link(d, tip.link, n_links, "link")
+    d.where = ""
+    limits = None
+    if doc.get("joint_limits") is not None:
+        limits = np.asarray(doc["joint_limits"], dtype=float)
+        n_j = len(dh) + (1 if grip else 0)
+        if limits.ndim != 2 or limits.shape[1] != 2 or len(limits) not in (len(dh), n_j):
+            d.fail("joint_limits", f"expected {n_j} pairs [qmin, qmax]")
+    return RobotDescription(dh, grip, points, shafts, skel, tip, limits)
+
+
+def _read_json(path: Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    text = path.read_text()
+    # dVRK files carry // and /* */ comments; strip them outside strings.
+    text = re.sub(r'("(?:\\.|[^"\\])*")|//[^\n]*|/\*.*?\*/', lambda m: m.group(1) or "", text, flags=re.S)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{path}: not valid JSON (line {e.lineno}: {e.msg})") from None
+
+
+def load_robot_json(path: str | Path) -> RobotDescription:
+    """Read robot.json; raise InputError naming file and field on any problem."""
+    path = Path(path)
+    return parse_robot(_read_json(path), path)
+
+
+def save_robot_json(path: str | Path, robot: RobotDescription) -> None:
+    Path(path).write_text(json.dumps(robot.to_json(), indent=2))
+
+
+def _dvrk_dh(path: Path) -> tuple[list[DHJoint], dict]:
+    doc = _read_json(path)
+    d = _Doc(path)
+    dh = doc.get("DH")
+    if not isinstance(dh, dict):
+        d.fail("DH", "missing object")
+    conv = dh.get("convention", "modified")
+    if conv != "modified":
+        d.fail("DH.convention", f"only modified DH is supported, got {conv!r}")
+    items = dh.get("links", dh.get("joints"))
+    if not isinstance(items, list) or not items:
+        d.fail("DH.links", "expected a non-empty list")
+    return [_dh_joint(d, o, i, lower_keys=True) for i, o in enumerate(items)], doc
+
+
+def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
+                     features_from: RobotDescription | None = None,
+                     has_gripper: bool | None = None) -> RobotDescription:
+    """Combine a dVRK arm file (joints 1-3) and tool file (joints 4-6) into one chain.
+
+    If the arm file lists the whole PSM (six or more joints, the older
+    ``psm-large-needle-driver.json`` layout), its first three are taken and the
+    tool file supplies the rest. The dVRK files hold no visual features:
+    ``features_from`` (e.g. a robot.json) supplies them. The jaw exists when
+    the tool file says so (a ``jaw`` section or a 7th joint) unless
+    ``has_gripper`` overrides.
+    """
+    arm, _ = _dvrk_dh(Path(arm_file))
+    tool, tool_doc = _dvrk_dh(Path(tool_file))
+    if len(arm) < 3:
+        raise InputError(f"{arm_file}: DH: expected at least 3 arm joints, got {len(arm)}")
+    tool = tool[-3:] if len(tool) > 3 else tool
+    grip = has_gripper if has_gripper is not None else bool("jaw" in tool_doc or len(tool) > 3)
+    base = features_from
+    if base is None:
+        return RobotDescription(arm[:3] + tool, grip)
+    return RobotDescription(arm[:3] + tool, grip, base.point_features, base.shaft_features,
+                            base.skeleton, base.tool_tip, base.joint_limits)

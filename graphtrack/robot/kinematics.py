@@ -1,0 +1,58 @@
+"""Forward kinematics of a modified-DH chain with the two gripper links, vectorised.
+
+    base_T_link_k = T_1(q_1) T_2(q_2) ... T_k(q_k),
+    T_i = RotX(alpha_i) TransX(A_i) RotZ(theta_i) TransZ(D_i)      (metres, radians)
+
+and, with a gripper (jaw angle j = q[n]),
+
+    base_T_link_{n+1} = base_T_link_n RotZ(+j/2),   base_T_link_{n+2} = base_T_link_n RotZ(-j/2).
+
+Every function takes joint vectors q of shape (..., n_joints) and loops only
+over the (few) joints, never over the leading axes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from graphtrack.errors import InputError
+from graphtrack.geometry.se3 import rot_x, rot_z, trans
+from graphtrack.robot.description import RobotDescription
+
+
+def check_joints(robot: RobotDescription, q: np.ndarray, where: str = "joints") -> np.ndarray:
+    """Return q as float array, raising InputError on a wrong length or NaN."""
+    q = np.asarray(q, dtype=float)
+    if q.shape[-1] != robot.n_joints:
+        raise InputError(f"{where}: expected {robot.n_joints} joint values "
+                         f"({robot.n_dh} DH joints{' + jaw' if robot.has_gripper else ''}), got {q.shape[-1]}")
+    if not np.all(np.isfinite(q)):
+        raise InputError(f"{where}: NaN or infinite joint reading")
+    return q
+
+
+def joint_transform(joint, qi: np.ndarray) -> np.ndarray:
+    """T_i(q_i) for one DHJoint, qi of any shape -> (..., 4, 4)."""
+    qi = np.asarray(qi, dtype=float)
+    if joint.type == "revolute":
+        theta, D = joint.theta + joint.offset + qi, np.full(qi.shape, joint.D)
+    else:
+        theta, D = np.full(qi.shape, joint.theta), joint.D + joint.offset + qi
+    fixed = rot_x(joint.alpha) @ trans(joint.A)
+    return fixed @ rot_z(theta) @ trans(0.0, 0.0, D)
+
+
+def link_transforms(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """base_T_link for links 0..n_links: (..., n_links + 1, 4, 4); link 0 is the base."""
+    q = np.asarray(q, dtype=float)
+    lead = q.shape[:-1]
+    out = np.empty(lead + (robot.n_links + 1, 4, 4))
+    T = np.broadcast_to(np.eye(4), lead + (4, 4)).copy()
+    out[..., 0, :, :] = T
+    for i, joint in enumerate(robot.dh):
+        T = T @ joint_transform(joint, q[..., i])
+        out[..., i + 1, :, :] = T
+    if robot.has_gripper:
+        j = q[..., robot.n_dh]
+        out[..., robot.n_dh + 1, :, :] = T @ rot_z(j / 2.0)
+        out[..., robot.n_dh + 2, :, :] = T @ rot_z(-j / 2.0)
+    return out
