@@ -1,0 +1,21 @@
+"""The no-correction baseline: E_t = E_0 (handeye.yaml) for every frame."""
+from __future__ import annotations
+
+from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.context import TrackingContext
+
+
+class KinematicsEstimator:
+    """Trusts the nominal hand-eye calibration and the joint readings as they are."""
+
+    name = "kinematics"
+    uses_observations = False
+
+    def __init__(self, ctx: TrackingContext, **_ignored):
+        self.E0 = ctx.handeye.copy()
+
+    def step(self, frame: Frame, observation=None) -> Estimate:
+        return Estimate(self.E0.copy())
+
+    def finish(self):
+        return None

@@ -1,0 +1,226 @@
+"""The tracking loop: recording -> undistort -> detect -> observe -> estimate -> write.
+
+``track`` streams a recording frame by frame through one estimator and writes
+trajectory.csv / trajectory.tum row by row (flushed, so an interruption loses
+nothing already computed), then metrics.json when labels.csv exists. A bad
+frame (corrupt image, NaN joints, ...) is skipped, warned about and counted in
+metrics.json; bad recordings raise InputError before anything is written.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from graphtrack.errors import FrameError, InputError
+from graphtrack.estimate import make_estimator
+from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.context import TrackingContext
+from graphtrack.robot.features import base_features, shaft_lines
+
+STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
+STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+
+
+@dataclass
+class TrackOptions:
+    """Everything that selects one tracking run (also the key of a study cell)."""
+
+    estimator: str = "kinematics"
+    observation: str = "line-intensities"
+    detector: str = "canny"
+    markers: bool = True
+    estimator_options: dict = field(default_factory=dict)
+    detector_options: dict = field(default_factory=dict)
+    alpha: float = 10.0
+    beta: float = 0.9
+    seed: int = 0
+
+
+class Pipeline:
+    """One frame at a time: undistort, detect, build the observation, estimate.
+
+    ``step(frame)`` returns (Estimate, Detection | None, Observation | None,
+    per-stage milliseconds). The detector is gated with the shaft edges
+    predicted from the previous estimate and the current joint readings.
+    """
+
+    def __init__(self, ctx: TrackingContext, options: TrackOptions):
+        self.ctx = ctx
+        self.options = options
+        opts = dict(options.estimator_options)
+        if options.estimator != "kinematics":
+            opts.setdefault("observation", options.observation)
+            opts.setdefault("markers", options.markers)
+        self.estimator = make_estimator(options.estimator, ctx, **opts)
+        self.needs_images = getattr(self.estimator, "uses_observations", True)
+        self.detector = None
+        if self.needs_images:
+            from graphtrack.detect import make_detector
+
+            self.detector = make_detector(options.detector, **options.detector_options)
+        self.last_E = ctx.handeye.copy()
+        self.rng = np.random.default_rng(options.seed)
+
+    def predicted_lines(self, frame: Frame) -> np.ndarray | None:
+        """Shaft edges (2, 2) (rho, theta) from the last estimate and this frame's readings."""
+        if not self.ctx.robot.shaft_features:
+            return None
+        cam = base_features(self.ctx.robot, frame.q).transformed(self.last_E)
+        rho, theta, valid = shaft_lines(cam, self.ctx.camera.K)
+        return np.stack([rho, theta], -1) if bool(valid) else None
+
+    def step(self, frame: Frame):
+        ms = {}
+        detection = observation = None
+        if self.needs_images:
+            from graphtrack.detect.observe import make_observation
+
+            t = time.perf_counter()
+            und = self.ctx.camera.undistort(frame.image)
+            ms["undistort"] = 1e3 * (time.perf_counter() - t)
+            t = time.perf_counter()
+            detection = self.detector.detect(und, self.predicted_lines(frame))
+            ms["detect"] = 1e3 * (time.perf_counter() - t)
+            t = time.perf_counter()
+            observation = make_observation(detection, self.options.observation, alpha=self.options.alpha,
+                                           beta=self.options.beta, use_markers=self.options.markers,
+                                           rng=self.rng)
+            ms["observe"] = 1e3 * (time.perf_counter() - t)
+        t = time.perf_counter()
+        estimate = self.estimator.step(frame, observation)
+        ms["estimate"] = 1e3 * (time.perf_counter() - t)
+        self.last_E = estimate.E
+        return estimate, detection, observation, ms
+
+
+def tip_pixel(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """The tool tip projected into the RAW (distorted) left image, (2,) px (NaN if none/behind)."""
+    feats = base_features(ctx.robot, q)
+    if feats.tip is None:
+        return np.full(2, np.nan)
+    tip = feats.transformed(E).tip
+    if tip[2] <= 0:
+        return np.full(2, np.nan)
+    return ctx.camera.project_raw(tip)
+
+
+def _extra_columns(estimator) -> list[str]:
+    return list(getattr(estimator, "extra_columns", ()))
+
+
+def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
+          progress: bool = True, max_frames: int | None = None, quiet: bool = False) -> dict:
+    """Run one estimator over a recording; write the outputs into ``out``; return metrics.
+
+    The returned dict is metrics.json's content plus ``timing`` (median ms
+    per stage) and ``fps``.
+    """
+    from graphtrack.eval.metrics import tip_metrics
+    from graphtrack.io.recording import open_recording
+    from graphtrack.io.trajectory import TrajectoryWriter
+
+    rec = open_recording(path)
+    ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".graphtrack-write-test"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        raise InputError(f"{out}: cannot write the output folder ({e.strerror})") from None
+    pipe = Pipeline(ctx, options)
+    extra = [c for c in _extra_columns(pipe.estimator)]
+    overlay = None
+    if video:
+        from graphtrack.eval.overlay import OverlayWriter
+
+        overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels)
+    skipped: Counter = Counter()
+    frames, tips, stage_ms, rows = [], [], {s: [] for s in STAGES}, []
+    total = len(rec) if max_frames is None else min(len(rec), max_frames)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
+                   disable=quiet)
+    t_wall = time.perf_counter()
+    with TrajectoryWriter(out, extra_columns=extra) as writer:
+        it = iter(rec.frames())
+        n = 0
+        while max_frames is None or n < max_frames:
+            t0 = time.perf_counter()
+            try:
+                item = next(it)
+            except StopIteration:
+                break
+            t_decode = 1e3 * (time.perf_counter() - t0)
+            n += 1
+            if bar is not None:
+                bar.update(1)
+            if isinstance(item, FrameError):
+                skipped[item.reason] += 1
+                if not quiet:
+                    print(f"graphtrack: warning: skipping {item}", file=sys.stderr)
+                continue
+            frame = item
+            if len(frame.q) != rec.robot.n_joints or not np.all(np.isfinite(frame.q)):
+                skipped["joint_count" if len(frame.q) != rec.robot.n_joints else "nan_joints"] += 1
+                if not quiet:
+                    print(f"graphtrack: warning: skipping frame {frame.index}: joint vector has "
+                          f"{len(frame.q)} finite={bool(np.all(np.isfinite(frame.q)))} values, "
+                          f"expected {rec.robot.n_joints}", file=sys.stderr)
+                continue
+            est, det, obs, ms = pipe.step(frame)
+            t = time.perf_counter()
+            tip = tip_pixel(ctx, frame.q, est.E)
+            total_ms = t_decode + sum(ms.values())
+            extras = _extras(est, extra)
+            writer.write(frame.index, frame.stamp, est.E, tip, total_ms, extras)
+            if overlay is not None:
+                overlay.write(frame, est, det, obs, tip)
+            ms["write"] = 1e3 * (time.perf_counter() - t)
+            ms["decode"] = t_decode
+            for s in STAGES:
+                stage_ms[s].append(ms.get(s, 0.0))
+            frames.append(frame.index)
+            tips.append(tip)
+            rows.append((frame.index, frame.stamp, frame.q, total_ms))
+        refined = pipe.estimator.finish() if hasattr(pipe.estimator, "finish") else None
+        if refined is not None:
+            tips = []
+            new_rows = []
+            for (fi, stamp, q, ms_), est in zip(rows, refined):
+                tip = tip_pixel(ctx, q, est.E)
+                tips.append(tip)
+                new_rows.append((fi, stamp, est.E, tip, ms_, _extras(est, extra)))
+            writer.rewrite_all(new_rows)
+    wall = time.perf_counter() - t_wall
+    if bar is not None:
+        bar.close()
+    if overlay is not None:
+        overlay.close()
+    tips_arr = np.asarray(tips, dtype=float).reshape(-1, 2)
+    result = {"estimator": options.estimator, "observation": options.observation,
+              "detector": options.detector, "frames_tracked": len(frames),
+              "skipped_reasons": dict(skipped), "frames_skipped": int(sum(skipped.values()))}
+    if rec.labels is not None:
+        result.update(tip_metrics(frames, tips_arr, rec.labels, ctx.camera.diagonal, dict(skipped), n))
+    result["timing_ms_median"] = {s: float(np.median(v)) if v else 0.0 for s, v in stage_ms.items()}
+    result["fps"] = float(len(frames) / wall) if wall > 0 else float("nan")
+    (out / "metrics.json").write_text(json.dumps(result, indent=2))
+    return result
+
+
+def _extras(est: Estimate, columns: list[str]) -> dict:
+    vals = dict(est.extra)
+    if est.std is not None:
+        vals.update({c: float(v) for c, v in zip(STD_COLUMNS, est.std)})
+    return {c: vals.get(c, float("nan")) for c in columns}
