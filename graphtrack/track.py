@@ -121,7 +121,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     The returned dict is metrics.json's content plus ``timing`` (median ms
     per stage) and ``fps``.
     """
-    from graphtrack.eval.metrics import tip_metrics
+    from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
     from graphtrack.io.recording import open_recording
     from graphtrack.io.trajectory import TrajectoryWriter
 
@@ -213,6 +213,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
               "skipped_reasons": dict(skipped), "frames_skipped": int(sum(skipped.values()))}
     if rec.labels is not None:
         result.update(tip_metrics(frames, tips_arr, rec.labels, ctx.camera.diagonal, dict(skipped), n))
+    result.update(evaluate_against_truth(path, out, rec.robot, {r[0]: r[2] for r in rows}))
     result["timing_ms_median"] = {s: float(np.median(v)) if v else 0.0 for s, v in stage_ms.items()}
     result["fps"] = float(len(frames) / wall) if wall > 0 else float("nan")
     (out / "metrics.json").write_text(json.dumps(result, indent=2))

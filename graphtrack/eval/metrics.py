@@ -6,6 +6,8 @@ the hand-labelled tip, also reported in % of the image diagonal.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 
@@ -52,4 +54,196 @@ def tip_metrics(frames, tips, labels, diagonal: float, skipped: dict[str, int] |
     }
     if n_frames is not None:
         doc["frames_total"] = int(n_frames)
+    return doc
+
+
+# -- accumulated error (the method's Fig. 4) -----------------------------------------
+def accumulated_error(errors: np.ndarray) -> np.ndarray:
+    """Running mean of the per-frame errors: a_k = (e_1 + ... + e_k) / k.
+
+    Non-finite entries are left out of both the sum and the count (the curve
+    holds its last value over them; NaN before the first finite error).
+    """
+    e = np.asarray(errors, dtype=float).ravel()
+    ok = np.isfinite(e)
+    s = np.cumsum(np.where(ok, e, 0.0))
+    n = np.cumsum(ok)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, s / np.maximum(n, 1), np.nan)
+
+
+def tip_error_series(trajectory: dict, labels: dict[int, np.ndarray],
+                     diagonal: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(scored frames, per-frame 2-D tip errors) of a read trajectory against labels.
+
+    Errors in px, or in % of the image diagonal when ``diagonal`` is given.
+    """
+    frames, errs = tip_errors(trajectory["frame"], trajectory["tip"], labels)
+    if diagonal:
+        errs = 100.0 * errs / float(diagonal)
+    return frames, errs
+
+
+# -- runtime --------------------------------------------------------------------------
+def runtime_metrics(ms: np.ndarray) -> dict:
+    """Per-frame runtime statistics (ms): mean, std, median, p95, max, and the fps of the median."""
+    v = np.asarray(ms, dtype=float)
+    v = v[np.isfinite(v)]
+    doc = summary(v)
+    doc["max"] = float(v.max()) if len(v) else float("nan")
+    doc["fps_median"] = float(1e3 / doc["median"]) if len(v) and doc["median"] > 0 else float("nan")
+    return doc
+
+
+# -- against ground truth (truth.csv of simulated recordings) -------------------------
+def rotation_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
+    """Angle (deg) of R_est R_true^T, for (..., 3, 3) stacks."""
+    D = np.einsum("...ij,...kj->...ik", np.asarray(R_est, float), np.asarray(R_true, float))
+    c = np.clip((np.trace(D, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(c))
+
+
+def pose_errors(E_est: np.ndarray, E_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame translation error (mm) and rotation error (deg) of E (..., 4, 4)."""
+    E_est, E_true = np.asarray(E_est, float), np.asarray(E_true, float)
+    t = 1e3 * np.linalg.norm(E_est[..., :3, 3] - E_true[..., :3, 3], axis=-1)
+    return t, rotation_error_deg(E_est[..., :3, :3], E_true[..., :3, :3])
+
+
+def perturbation(E_true: np.ndarray, E_est: np.ndarray) -> np.ndarray:
+    """xi = (b, w) with E_true = Exp(xi) . E_est (left, camera-frame perturbation; translation first).
+
+    Exp is the (b, w) map of :mod:`graphtrack.geometry.se3` (translation b in m,
+    axis-angle w in rad).
+    """
+    from graphtrack.geometry.se3 import invert, matrix_to_bw
+
+    return matrix_to_bw(np.asarray(E_true, float) @ invert(np.asarray(E_est, float)))
+
+
+def nees(E_true: np.ndarray, E_est: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Normalised estimation error squared per frame with a diagonal covariance.
+
+    std: (N, 6) standard deviations of xi (std_bx..std_wz); frames with a
+    non-finite or non-positive std get NaN. Consistent filters average 6.
+    """
+    xi = perturbation(E_true, E_est)
+    std = np.asarray(std, float)
+    ok = np.all(np.isfinite(std) & (std > 0), axis=-1) & np.all(np.isfinite(xi), axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = np.sum((xi / np.where(std > 0, std, 1.0)) ** 2, axis=-1)
+    return np.where(ok, v, np.nan)
+
+
+STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+#: chi-square(6) two-sided 95% bounds of a single NEES value.
+NEES_95 = (1.2373442457912, 14.4493753446378)
+
+
+def truth_path(recording: str | Path) -> Path | None:
+    """truth.csv of a recording folder (or of the folder holding a recording file), if any."""
+    p = Path(recording)
+    folder = p if p.is_dir() else p.parent
+    t = folder / "truth.csv"
+    return t if t.is_file() else None
+
+
+def truth_errors(est: dict, truth: dict, tips_base: dict[int, np.ndarray] | None = None) -> dict:
+    """Per-frame errors of a trajectory against truth, on the frames both hold.
+
+    est, truth: :func:`graphtrack.io.trajectory.read_trajectory` dicts.
+    tips_base: frame -> tool tip in the PSM base frame from that frame's joint
+    READINGS (what the estimator saw); the 3-D tip error is then
+    |E_est tip - E_true tip| in mm. When truth holds camera-frame tip columns
+    (tip_x, tip_y, tip_z, metres) those are the true tip instead.
+    Returns arrays: frame, trans_mm, rot_deg, tip_mm, tip2d_px (against
+    truth's tip_u/v) and nees (when est has the std columns).
+    """
+    ti = {int(f): i for i, f in enumerate(truth["frame"])}
+    pairs = [(i, ti[int(f)]) for i, f in enumerate(est["frame"]) if int(f) in ti]
+    ie = np.array([p[0] for p in pairs], dtype=int)
+    it = np.array([p[1] for p in pairs], dtype=int)
+    frames = np.asarray(est["frame"])[ie]
+    Ee, Et = est["E"][ie], truth["E"][it]
+    trans, rot = pose_errors(Ee, Et)
+    out = {"frame": frames, "trans_mm": trans, "rot_deg": rot,
+           "tip2d_px": np.linalg.norm(est["tip"][ie] - truth["tip"][it], axis=-1)}
+    tip_mm = np.full(len(frames), np.nan)
+    tx = truth.get("extras", {})
+    true_cam = None
+    if all(k in tx for k in ("tip_x", "tip_y", "tip_z")):
+        true_cam = np.stack([tx["tip_x"], tx["tip_y"], tx["tip_z"]], -1)[it]
+    if tips_base:
+        for k, f in enumerate(frames):
+            tb = tips_base.get(int(f))
+            if tb is None or not np.all(np.isfinite(tb)):
+                continue
+            pe = Ee[k, :3, :3] @ tb + Ee[k, :3, 3]
+            pt = true_cam[k] if true_cam is not None else Et[k, :3, :3] @ tb + Et[k, :3, 3]
+            tip_mm[k] = 1e3 * np.linalg.norm(pe - pt)
+    elif true_cam is not None:
+        pass  # no readings: the estimated 3-D tip is unknown
+    out["tip_mm"] = tip_mm
+    ex = est.get("extras", {})
+    if all(c in ex for c in STD_COLUMNS):
+        std = np.stack([ex[c] for c in STD_COLUMNS], -1)[ie].astype(float)
+        out["nees"] = nees(Et, Ee, std)
+    return out
+
+
+def truth_metrics(errors: dict) -> dict:
+    """Summaries (mean, std, median, p95) of :func:`truth_errors`' arrays for metrics.json."""
+    doc = {"truth_frames": int(len(errors["frame"])),
+           "tip_error_3d_mm": summary(errors["tip_mm"]),
+           "translation_error_mm": summary(errors["trans_mm"]),
+           "rotation_error_deg": summary(errors["rot_deg"]),
+           "tip_error_vs_truth_px": summary(errors["tip2d_px"])}
+    if "nees" in errors:
+        v = errors["nees"]
+        fin = v[np.isfinite(v)]
+        doc["nees"] = summary(v)
+        doc["nees"]["dof"] = 6
+        doc["nees"]["fraction_in_95"] = (float(np.mean((fin >= NEES_95[0]) & (fin <= NEES_95[1])))
+                                         if len(fin) else float("nan"))
+    return doc
+
+
+def write_errors_csv(path: str | Path, errors: dict) -> None:
+    """Per-frame truth errors as CSV (frame, trans_mm, rot_deg, tip_mm, tip2d_px[, nees])."""
+    cols = [c for c in ("trans_mm", "rot_deg", "tip_mm", "tip2d_px", "nees") if c in errors]
+    with Path(path).open("w") as f:
+        f.write(",".join(["frame"] + cols) + "\n")
+        for k, fr in enumerate(errors["frame"]):
+            f.write(",".join([str(int(fr))] + [repr(float(errors[c][k])) for c in cols]) + "\n")
+
+
+def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
+                           joints: dict[int, np.ndarray] | None = None) -> dict:
+    """What track() adds to metrics.json beyond the label metrics.
+
+    Always: ``runtime_ms`` (per-frame runtime statistics of trajectory.csv's
+    ``ms``). When the recording has truth.csv: the truth summaries of
+    :func:`truth_metrics`, and the per-frame errors in ``out/truth_errors.csv``.
+    robot + joints (frame -> joint vector as read) give the 3-D tip error.
+    """
+    from graphtrack.io.trajectory import read_trajectory
+
+    out = Path(out)
+    est = read_trajectory(out / "trajectory.csv")
+    doc = {"runtime_ms": runtime_metrics(est["ms"])}
+    tp = truth_path(recording)
+    if tp is None:
+        return doc
+    truth = read_trajectory(tp)
+    tips_base = None
+    if robot is not None and joints and getattr(robot, "tool_tip", None) is not None:
+        from graphtrack.robot.features import base_features
+
+        fr = sorted(joints)
+        q = np.stack([np.asarray(joints[f], float) for f in fr])
+        tips = base_features(robot, q).tip
+        tips_base = {f: tips[k] for k, f in enumerate(fr)}
+    errs = truth_errors(est, truth, tips_base)
+    write_errors_csv(out / "truth_errors.csv", errs)
+    doc.update(truth_metrics(errs))
     return doc

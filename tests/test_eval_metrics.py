@@ -1,0 +1,85 @@
+"""Evaluation metrics against hand-computed values."""
+import numpy as np
+import pytest
+
+from graphtrack.eval import metrics as M
+from graphtrack.geometry.se3 import bw_to_matrix
+
+
+def test_accumulated_error_is_running_mean():
+    e = np.array([2.0, 4.0, 6.0, np.nan, 8.0])
+    np.testing.assert_allclose(M.accumulated_error(e), [2.0, 3.0, 4.0, 4.0, 5.0])
+    assert np.isnan(M.accumulated_error([np.nan, 1.0])[0])
+
+
+def test_summary_percentiles():
+    v = np.arange(1, 101, dtype=float)  # 1..100
+    s = M.summary(np.append(v, np.nan))
+    assert s["mean"] == pytest.approx(50.5)
+    assert s["median"] == pytest.approx(50.5)
+    assert s["p95"] == pytest.approx(95.05)  # linear interpolation: 1 + 0.95 * 99
+    assert s["std"] == pytest.approx(np.sqrt((100 ** 2 - 1) / 12))
+
+
+def test_tip_metrics_px_and_percent_of_diagonal():
+    labels = {0: np.array([0.0, 0.0]), 1: np.array([10.0, 10.0]), 5: np.array([1.0, 1.0])}
+    tips = np.array([[3.0, 4.0], [10.0, 10.0]])  # errors 5, 0; frame 5 not tracked
+    doc = M.tip_metrics([0, 1], tips, labels, diagonal=500.0)
+    assert doc["frames_scored"] == 2
+    assert doc["tip_error_px"]["mean"] == pytest.approx(2.5)
+    assert doc["tip_error_percent_diagonal"]["mean"] == pytest.approx(0.5)
+
+
+def test_rotation_and_translation_error_of_known_perturbation():
+    E_true = bw_to_matrix(np.array([0.1, -0.02, 0.15, 0.3, -0.1, 0.2]))
+    # 3 degrees about z and 4 mm along x, applied on the left (camera frame)
+    d = bw_to_matrix(np.array([0.004, 0.0, 0.0, 0.0, 0.0, np.radians(3.0)]))
+    E_est = d @ E_true
+    t, r = M.pose_errors(E_est[None], E_true[None])
+    assert r[0] == pytest.approx(3.0, abs=1e-9)
+    # translation of d @ E_true = R_d t_true + b_d
+    expected = 1e3 * np.linalg.norm(d[:3, :3] @ E_true[:3, 3] + d[:3, 3] - E_true[:3, 3])
+    assert t[0] == pytest.approx(expected)
+
+
+def test_nees_with_known_perturbation():
+    E_est = bw_to_matrix(np.array([0.1, 0.0, 0.1, 0.0, 0.2, 0.0]))
+    xi = np.array([0.002, -0.001, 0.0, 0.01, 0.0, -0.02])
+    E_true = bw_to_matrix(xi) @ E_est
+    np.testing.assert_allclose(M.perturbation(E_true, E_est), xi, atol=1e-12)
+    std = np.array([0.001, 0.001, 0.001, 0.01, 0.01, 0.01])
+    v = M.nees(E_true[None], E_est[None], std[None])
+    assert v[0] == pytest.approx(4 + 1 + 0 + 1 + 0 + 4)
+    assert np.isnan(M.nees(E_true[None], E_est[None], np.zeros((1, 6)))[0])
+
+
+def test_runtime_metrics():
+    r = M.runtime_metrics([10.0, 20.0, 30.0, np.nan])
+    assert r["median"] == pytest.approx(20.0)
+    assert r["max"] == pytest.approx(30.0)
+    assert r["fps_median"] == pytest.approx(50.0)
+
+
+def test_truth_errors_and_3d_tip(tmp_path):
+    from graphtrack.io.trajectory import TrajectoryWriter, read_trajectory
+
+    E_true = [bw_to_matrix(np.array([0.0, 0.0, 0.2, 0.0, 0.0, 0.0 + 0.01 * k])) for k in range(3)]
+    offset = np.eye(4)
+    offset[0, 3] = 0.002  # 2 mm in x
+    for name, Es in (("truth", E_true), ("est", [offset @ E for E in E_true])):
+        (tmp_path / name).mkdir()
+        with TrajectoryWriter(tmp_path / name, extra_columns=M.STD_COLUMNS) as w:
+            for k, E in enumerate(Es):
+                w.write(k, 0.1 * k, E, (100.0 + k, 50.0), 10.0,
+                        {c: 0.001 for c in M.STD_COLUMNS})
+    est = read_trajectory(tmp_path / "est" / "trajectory.csv")
+    truth = read_trajectory(tmp_path / "truth" / "trajectory.csv")
+    tips = {k: np.array([0.0, 0.01, 0.0]) for k in range(3)}
+    errs = M.truth_errors(est, truth, tips)
+    np.testing.assert_allclose(errs["trans_mm"], 2.0)
+    np.testing.assert_allclose(errs["tip_mm"], 2.0)
+    np.testing.assert_allclose(errs["rot_deg"], 0.0, atol=1e-6)
+    np.testing.assert_allclose(errs["nees"], 4.0, rtol=1e-6)  # (2 mm / 1 mm)^2
+    doc = M.truth_metrics(errs)
+    assert doc["translation_error_mm"]["mean"] == pytest.approx(2.0)
+    assert doc["nees"]["dof"] == 6
