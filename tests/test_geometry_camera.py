@@ -1,0 +1,88 @@
+"""Camera projection and calibration loading against OpenCV as the oracle."""
+import cv2
+import numpy as np
+import pytest
+
+from graphtrack.errors import InputError
+from graphtrack.geometry.camera import Calibration, Camera, load_calibration, save_calibration
+
+K = np.array([[1000.0, 0, 481.3], [0, 995.0, 268.9], [0, 0, 1]])
+D = np.array([-0.32, 0.12, 0.0011, -0.0007, -0.02])
+
+
+def camera():
+    return Camera(K.copy(), D.copy(), 540, 960)
+
+
+def points(n=500, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(-0.04, 0.04, n), rng.uniform(-0.025, 0.025, n), rng.uniform(0.06, 0.2, n)])
+
+
+def test_project_raw_matches_cv2_projectPoints():
+    P = points()
+    ref, _ = cv2.projectPoints(P, np.zeros(3), np.zeros(3), K, D)
+    np.testing.assert_allclose(camera().project_raw(P), ref.reshape(-1, 2), atol=1e-9)
+
+
+def test_project_undistorted_matches_cv2_without_distortion():
+    P = points(seed=1)
+    ref, _ = cv2.projectPoints(P, np.zeros(3), np.zeros(3), K, None)
+    np.testing.assert_allclose(camera().project_undistorted(P), ref.reshape(-1, 2), atol=1e-9)
+
+
+def test_undistort_pixels_inverts_distortion():
+    cam = camera()
+    P = points(seed=2)
+    raw = cam.project_raw(P)
+    np.testing.assert_allclose(cam.undistort_pixels(raw), cam.project_undistorted(P), atol=1e-6)
+    np.testing.assert_allclose(cam.distort_pixels(cam.project_undistorted(P)), raw, atol=1e-9)
+
+
+def test_undistort_image_moves_a_dot_to_its_undistorted_pixel():
+    cam = camera()
+    P = np.array([[0.035, 0.02, 0.1]])
+    raw = cam.project_raw(P)[0]
+    img = np.zeros((540, 960), np.uint8)
+    cv2.circle(img, (int(round(raw[0] * 16)), int(round(raw[1] * 16))), 3 * 16, 255, -1, shift=4)
+    und = cam.undistort(img)
+    m = cv2.moments(und.astype(np.float32))
+    centre = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+    assert np.linalg.norm(centre - cam.project_undistorted(P)[0]) < 0.3
+    assert cam.undistort_maps() is cam.undistort_maps()  # computed once
+
+
+def test_calibration_roundtrip_mono_and_stereo(tmp_path):
+    cam = camera()
+    save_calibration(tmp_path / "mono.yaml", Calibration(cam))
+    c = load_calibration(tmp_path / "mono.yaml")
+    np.testing.assert_array_equal(c.left.K, K)
+    np.testing.assert_array_equal(c.left.dist, D)
+    assert (c.left.height, c.left.width) == (540, 960) and c.right is None
+    stereo = Calibration(cam, camera(), np.eye(3), np.array([-0.0042, 0, 0]))
+    save_calibration(tmp_path / "stereo.yaml", stereo)
+    text = (tmp_path / "stereo.yaml").read_text()
+    assert "-4.2" in text  # millimetres on disk
+    s = load_calibration(tmp_path / "stereo.yaml")
+    np.testing.assert_allclose(s.T, [-0.0042, 0, 0])
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("K1: {data: [1,0,0,0,1,0,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n", "ImageSize"),
+    ("ImageSize: [540, 960]\nD1: {data: [0,0,0,0,0]}\n", "K1"),
+    ("ImageSize: [540, 960]\nK1: {data: [1,0,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n", "K1"),
+    ("ImageSize: [540, 960]\nK1: {data: [1,0,0,0,1,0,0,0,x]}\nD1: {data: [0,0,0,0,0]}\n", "K1"),
+    ("ImageSize: [540, 960]\nK1: {data: [1,0,0,0,1,0,0,0,1]}\nD1: {data: [.nan,0,0,0,0]}\n", "D1"),
+    ("ImageSize: [540, 960\n", "YAML"),
+])
+def test_bad_calibration_names_file_and_key(tmp_path, text, needle):
+    p = tmp_path / "camera_calibration.yaml"
+    p.write_text(text)
+    with pytest.raises(InputError) as e:
+        load_calibration(p)
+    assert "camera_calibration.yaml" in str(e.value) and needle in str(e.value)
+
+
+def test_missing_calibration_file(tmp_path):
+    with pytest.raises(InputError, match="file not found"):
+        load_calibration(tmp_path / "nope.yaml")

@@ -1,0 +1,66 @@
+"""robot.json and dVRK config loading: every bad input names the file and field."""
+import json
+
+import pytest
+
+from graphtrack.errors import InputError
+from graphtrack.robot.description import load_dvrk_config, load_robot_json, save_robot_json
+from graphtrack.robot.psm import psm_large_needle_driver
+
+
+def write(tmp_path, doc):
+    p = tmp_path / "robot.json"
+    p.write_text(json.dumps(doc) if not isinstance(doc, str) else doc)
+    return p
+
+
+def good():
+    return psm_large_needle_driver().to_json()
+
+
+def test_roundtrip(tmp_path):
+    save_robot_json(tmp_path / "robot.json", psm_large_needle_driver())
+    r = load_robot_json(tmp_path / "robot.json")
+    assert r.n_dh == 6 and r.has_gripper and r.n_links == 8 and r.tool_tip.link == 7
+    assert len(r.point_features) == 4 and r.shaft_features[0].radius == 0.004
+
+
+@pytest.mark.parametrize("mutate,needle", [
+    (lambda d: d.pop("DH_params"), "DH_params"),
+    (lambda d: d["DH_params"][2].pop("alpha"), "joint 3: alpha"),
+    (lambda d: d["DH_params"][1].update(type="spherical"), "joint 2: type"),
+    (lambda d: d["DH_params"][0].update(A="x"), "joint 1: A"),
+    (lambda d: d["point_features"][0].update(link=12), "point_features[0]: link"),
+    (lambda d: d["shaft_features"][0].update(position=[0, 0]), "shaft_features[0]: position"),
+    (lambda d: d["tool_tip"].pop("link"), "tool_tip: link"),
+    (lambda d: d.update(has_gripper="yes"), "has_gripper"),
+])
+def test_bad_robot_json(tmp_path, mutate, needle):
+    d = good()
+    mutate(d)
+    with pytest.raises(InputError) as e:
+        load_robot_json(write(tmp_path, d))
+    assert "robot.json" in str(e.value) and needle in str(e.value)
+
+
+def test_not_json_and_missing(tmp_path):
+    with pytest.raises(InputError, match="not valid JSON"):
+        load_robot_json(write(tmp_path, "{nope"))
+    with pytest.raises(InputError, match="file not found"):
+        load_robot_json(tmp_path / "missing.json")
+
+
+def test_dvrk_files_with_comments_and_both_layouts(tmp_path):
+    arm = tmp_path / "arm.json"
+    arm.write_text('/* arm */ {"DH": {"convention": "modified", "joints": [ // three\n'
+                   + ",".join('{"alpha": 0.1, "A": 0, "theta": 0, "D": 0, "type": "revolute", "offset": 0} // j\n'
+                              for _ in range(3)) + "]}}")
+    tool = tmp_path / "tool.json"
+    tool.write_text('{"DH": {"links": [' + ",".join(
+        '{"convention": "modified", "alpha": 0, "A": 0, "theta": 0, "D": 0.1, "type": "revolute"}'
+        for _ in range(3)) + ']}, "jaw": {}}')
+    r = load_dvrk_config(arm, tool)
+    assert r.n_dh == 6 and r.has_gripper
+    tool.write_text('{"DH": {"convention": "standard", "links": []}}')
+    with pytest.raises(InputError, match="tool.json"):
+        load_dvrk_config(arm, tool)
