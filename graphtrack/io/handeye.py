@@ -1,0 +1,92 @@
+"""handeye.yaml: the nominal camera-from-base transform of one arm.
+
+The file stores (format doc, "handeye.yaml")::
+
+    PSM1_tvec: [tx, ty, tz]    # MILLIMETRES
+    PSM1_rvec: [rx, ry, rz]    # axis-angle, radians (OpenCV Rodrigues vector)
+
+and maps points in the PSM base (remote-centre-of-motion) frame into the left
+camera frame. In memory the transform is a 4x4 matrix in METRES, like every
+other length in graphtrack.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from graphtrack.errors import InputError
+from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
+
+
+def _read_yaml(path: Path) -> dict:
+    import yaml
+
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    text = path.read_text()
+    # OpenCV FileStorage writes a "%YAML:1.0" directive that PyYAML rejects
+    text = re.sub(r"^%YAML:1\.0\s*\n", "", text)
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a mapping of keys like 'PSM1_tvec'")
+    return doc
+
+
+def _vector3(doc: dict, key: str, path: Path) -> np.ndarray:
+    if key not in doc:
+        raise InputError(f"{path}: missing key '{key}'")
+    v = doc[key]
+    if isinstance(v, dict):  # {data: [...]} as OpenCV / camera_calibration.yaml write it
+        v = v.get("data")
+    try:
+        a = np.asarray(v, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(f"{path}: key '{key}' is not a list of 3 numbers") from None
+    if a.size != 3:
+        raise InputError(f"{path}: key '{key}' has {a.size} values, expected 3")
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"{path}: key '{key}' holds NaN or infinite values")
+    return a
+
+
+def load_handeye(path: str | Path, arm: str = "PSM1") -> np.ndarray:
+    """Read handeye.yaml -> 4x4 camera-from-base transform in metres.
+
+    Parameters
+    ----------
+    path : the YAML file (translation in mm, rotation as axis-angle in rad).
+    arm : key prefix (``PSM1`` -> ``PSM1_tvec`` / ``PSM1_rvec``). When the file
+        holds exactly one ``*_tvec`` key, that arm is used whatever ``arm`` says
+        (recordings of PSM2 work without renaming keys).
+
+    Returns
+    -------
+    (4, 4) float array, translation in METRES.
+
+    Raises
+    ------
+    InputError naming the file and the key when a key is missing, is not three
+    numbers, or holds NaN/inf.
+    """
+    path = Path(path)
+    doc = _read_yaml(path)
+    tkeys = [k for k in doc if isinstance(k, str) and k.endswith("_tvec")]
+    prefix = tkeys[0][: -len("_tvec")] if len(tkeys) == 1 else arm
+    t_mm = _vector3(doc, f"{prefix}_tvec", path)
+    rvec = _vector3(doc, f"{prefix}_rvec", path)
+    return bw_to_matrix(np.concatenate([t_mm / 1000.0, rvec]))
+
+
+def save_handeye(path: str | Path, T: np.ndarray, arm: str = "PSM1") -> None:
+    """Write a 4x4 camera-from-base transform (metres) as handeye.yaml (mm, rad)."""
+    import yaml
+
+    bw = matrix_to_bw(np.asarray(T, dtype=float))
+    doc = {f"{arm}_tvec": [float(v) * 1000.0 for v in bw[:3]],
+           f"{arm}_rvec": [float(v) for v in bw[3:]]}
+    Path(path).write_text(yaml.safe_dump(doc, default_flow_style=None, sort_keys=False))
