@@ -1,0 +1,412 @@
+"""ROS bags in and out: the bag form of a sequence (format doc, "The bag").
+
+Reading (ROS 1 ``.bag`` files and ROS 2 bag folders, via ``rosbags``) is
+streamed in two passes so that a 10 GB bag never sits in memory:
+
+1. the small joint and jaw messages (``/dvrk/PSM1/state_joint_current``,
+   ``/dvrk/PSM1/state_jaw_current``) -> arrays of header stamps (ns) and positions;
+2. the left images (``/stereo/left/image``, else ``/stereo/left/image/compressed``)
+   in bag order, decoded one at a time; each takes the joint and jaw messages
+   whose header stamps are nearest its own header stamp (ties: the earlier one).
+
+A message whose header stamp is zero (never set by its publisher) uses its bag
+record time instead.
+
+Truncated ROS 1 bags: a bag whose index is missing or damaged (recording
+killed, disk full, partial copy, ``.bag.active``) is read by a linear scan of its
+records (:mod:`graphtrack.io.bag1scan`): every complete message before the
+damage is used, ``BagSource.truncated`` is True and ``BagSource.warnings`` says
+so. A read error in the middle of an indexed bag, after some frames were
+yielded, raises InputError naming the bag and the frame.
+"""
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import cv2
+import numpy as np
+
+from graphtrack.errors import FrameError, InputError
+
+IMAGE_TOPIC = "/stereo/left/image"
+COMPRESSED_TOPIC = "/stereo/left/image/compressed"
+IMAGE_TYPE = "sensor_msgs/msg/Image"
+COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
+JOINT_TYPE = "sensor_msgs/msg/JointState"
+
+
+def joint_topic(arm: str = "PSM1") -> str:
+    return f"/dvrk/{arm}/state_joint_current"
+
+
+def jaw_topic(arm: str = "PSM1") -> str:
+    return f"/dvrk/{arm}/state_jaw_current"
+
+
+# -- stamps and image decoding -----------------------------------------------------------
+def to_ns(stamp: float) -> int:
+    """Seconds (float) -> integer nanoseconds, exact to the float's resolution."""
+    sec = math.floor(stamp)
+    ns = int(round((stamp - sec) * 1e9))
+    return int(sec) * 1_000_000_000 + ns
+
+
+def _header_ns(msg, fallback_ns: int) -> int:
+    st = msg.header.stamp
+    ns = int(st.sec) * 1_000_000_000 + int(st.nanosec)
+    return ns if ns != 0 else int(fallback_ns)
+
+
+def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
+    """sensor_msgs Image / CompressedImage -> H x W x 3 uint8 BGR (a fresh, writable array).
+
+    Raises ValueError for corrupt data (the frame is skipped) and InputError for
+    an encoding graphtrack does not read (every frame would fail alike).
+    """
+    if msgtype == COMPRESSED_TYPE:
+        buf = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+        if img is None:
+            raise ValueError(f"compressed image ({msg.format!r}) does not decode")
+        return img
+    enc = msg.encoding.lower()
+    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "8uc3": 3, "rgba8": 4, "bgra8": 4}
+    if enc not in channels:
+        raise InputError(f"{where}: image encoding {msg.encoding!r} is not supported "
+                         "(rgb8, bgr8, mono8, rgba8, bgra8)")
+    h, w, c, step = int(msg.height), int(msg.width), channels[enc], int(msg.step)
+    data = np.asarray(msg.data, dtype=np.uint8).ravel()
+    if h <= 0 or w <= 0 or step < w * c or data.size < step * (h - 1) + w * c:
+        raise ValueError(f"raw image data has {data.size} bytes, too few for {w}x{h} {enc} (step {step})")
+    if data.size < step * h:
+        data = np.concatenate([data, np.zeros(step * h - data.size, np.uint8)])
+    img = data[: step * h].reshape(h, step)[:, : w * c].reshape(h, w, c)
+    conv = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR,
+            "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR}.get(enc)
+    return cv2.cvtColor(img, conv) if conv is not None else img.copy()
+
+
+def _raw_header_ns(raw: bytes, ros2: bool) -> int:
+    """Header stamp straight from serialized bytes (no image decoding): ROS 1 seq,sec,nsec;
+    CDR: 4-byte encapsulation, then sec,nanosec."""
+    if ros2:
+        endian = "<" if raw[1] == 1 else ">"
+        sec, nsec = struct.unpack_from(endian + "iI", raw, 4)
+    else:
+        sec, nsec = struct.unpack_from("<II", raw, 4)
+    return sec * 1_000_000_000 + nsec
+
+
+# -- joint table ------------------------------------------------------------------------
+@dataclass
+class JointTable:
+    """Joint or jaw readings sorted by header stamp: stamps (N,) ns, values (N, m) padded
+    with NaN, lengths (N,) the number of values each message carried."""
+
+    stamps: np.ndarray
+    values: np.ndarray
+    lengths: np.ndarray
+
+    @classmethod
+    def build(cls, stamps: list[int], values: list[np.ndarray]) -> "JointTable":
+        n = len(stamps)
+        width = max((len(v) for v in values), default=0)
+        arr = np.full((n, width), np.nan)
+        lengths = np.zeros(n, dtype=int)
+        for i, v in enumerate(values):
+            arr[i, : len(v)] = v
+            lengths[i] = len(v)
+        order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
+        return cls(np.asarray(stamps, dtype=np.int64)[order], arr[order], lengths[order])
+
+    def nearest(self, t_ns: int) -> np.ndarray:
+        """The reading whose stamp is nearest t_ns (ties: the earlier); empty if none."""
+        if len(self.stamps) == 0:
+            return np.zeros(0)
+        i = int(np.searchsorted(self.stamps, t_ns))
+        if i == len(self.stamps) or (i > 0 and t_ns - self.stamps[i - 1] <= self.stamps[i] - t_ns):
+            i -= 1
+        return self.values[i, : self.lengths[i]]
+
+
+# -- the reader -------------------------------------------------------------------------
+class BagSource:
+    """One ROS 1 bag file or ROS 2 bag folder: validated at construction, streamed later.
+
+    Attributes: path, image_topic, n_images (frame count, from the index; from a
+    scan for truncated bags), has_jaw, truncated, warnings (lines for the user).
+    Raises InputError naming the bag (and topic) when it cannot be read or lacks
+    the left image topic or the joint topic.
+    """
+
+    def __init__(self, path: str | Path, arm: str = "PSM1"):
+        self.path = Path(path)
+        self.arm = arm
+        self.joint_topic, self.jaw_topic = joint_topic(arm), jaw_topic(arm)
+        self.ros2 = self.path.is_dir()
+        self.truncated = False
+        self.warnings: list[str] = []
+        self._table: tuple[JointTable, JointTable] | None = None
+        self._stamps: np.ndarray | None = None
+        self._scan_images: list[int] | None = None
+        try:
+            topics = self._indexed_topics()
+            self.scan = False
+        except InputError:
+            raise
+        except Exception as e:  # noqa: BLE001 - rosbags raises many types on damaged files
+            if self.ros2 or not self._has_ros1_magic():
+                raise InputError(f"{self.path}: cannot read bag ({_one_line(e)})") from None
+            self.scan = True
+            topics = self._scan_topics(e)
+        self._choose_topics(topics)
+
+    # -- opening ------------------------------------------------------------------------
+    def _reader(self):
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+
+        store = get_typestore(Stores.ROS2_HUMBLE if self.ros2 else Stores.ROS1_NOETIC)
+        return AnyReader([self.path], default_typestore=store)
+
+    def _indexed_topics(self) -> dict[str, tuple[str, int]]:
+        if not self.ros2 and self.path.suffix != ".bag":
+            raise ValueError("not named .bag (an unindexed .bag.active?)")
+        with self._reader() as r:
+            return {name: (info.msgtype, info.msgcount) for name, info in r.topics.items()}
+
+    def _has_ros1_magic(self) -> bool:
+        try:
+            with self.path.open("rb") as f:
+                return f.readline() == b"#ROSBAG V2.0\n"
+        except OSError:
+            return False
+
+    def _scan_topics(self, err: Exception) -> dict[str, tuple[str, int]]:
+        """Unindexed/truncated ROS 1 bag: one scan pass collects joints and image stamps."""
+        from graphtrack.io.bag1scan import Bag1Scan
+        from rosbags.typesys import Stores, get_typestore
+
+        store = get_typestore(Stores.ROS1_NOETIC)
+        scan = Bag1Scan(self.path)
+        counts: dict[str, list] = {}
+        joints: dict[str, tuple[list, list]] = {self.joint_topic: ([], []), self.jaw_topic: ([], [])}
+        img_stamps: dict[str, list[int]] = {IMAGE_TOPIC: [], COMPRESSED_TOPIC: []}
+        for conn, t, raw in scan.messages():
+            counts.setdefault(conn.topic, [conn.msgtype, 0])[1] += 1
+            if conn.topic in joints and conn.msgtype == JOINT_TYPE:
+                self._add_joint(joints[conn.topic], store.deserialize_ros1, raw, conn.msgtype, t)
+            elif conn.topic in img_stamps:
+                ns = _raw_header_ns(raw, False) if len(raw) >= 12 else 0
+                img_stamps[conn.topic].append(ns or t)
+        self.truncated = True
+        why = f"{_one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
+        self.warnings.append(f"{self.path}: bag index unusable ({why}); read by scanning its "
+                             "records, frames after the damage are missing")
+        self._table = (JointTable.build(*joints[self.joint_topic]), JointTable.build(*joints[self.jaw_topic]))
+        self._scan_stamps = img_stamps
+        return {k: (v[0], v[1]) for k, v in counts.items()}
+
+    def _choose_topics(self, topics: dict[str, tuple[str, int]]) -> None:
+        if IMAGE_TOPIC in topics:
+            self.image_topic, want = IMAGE_TOPIC, IMAGE_TYPE
+        elif COMPRESSED_TOPIC in topics:
+            self.image_topic, want = COMPRESSED_TOPIC, COMPRESSED_TYPE
+        elif self.scan:
+            raise InputError(f"{self.warnings[-1]}; no complete left image found")
+        else:
+            raise InputError(f"{self.path}: no left image topic ({IMAGE_TOPIC} or {COMPRESSED_TOPIC}); "
+                             f"topics: {', '.join(sorted(topics)) or 'none'}")
+        self.image_type, self.n_images = topics[self.image_topic]
+        if self.image_type != want:
+            raise InputError(f"{self.path}: topic {self.image_topic} has type {self.image_type}, expected {want}")
+        if self.joint_topic not in topics or topics[self.joint_topic][1] == 0:
+            raise InputError(f"{self.path}: no messages on joint topic {self.joint_topic}")
+        for t in (self.joint_topic, self.jaw_topic):
+            if t in topics and topics[t][0] != JOINT_TYPE:
+                raise InputError(f"{self.path}: topic {t} has type {topics[t][0]}, expected {JOINT_TYPE}")
+        self.has_jaw = topics.get(self.jaw_topic, (None, 0))[1] > 0
+        if self.scan:
+            # images stamped after the last surviving joint (jaw) reading lost the readings
+            # that sync them: the recording ends before them
+            stamps = np.asarray(self._scan_stamps[self.image_topic], dtype=np.int64)
+            joints, jaw = self._table
+            last = min([t.stamps[-1] for t in ((joints, jaw) if self.has_jaw else (joints,)) if len(t.stamps)]
+                       or [np.iinfo(np.int64).max])
+            beyond = np.flatnonzero(stamps > last)
+            self.n_images = int(beyond[0]) if beyond.size else len(stamps)
+            self._stamps = stamps[: self.n_images]
+
+    def __len__(self) -> int:
+        return int(self.n_images)
+
+    # -- pass 1: joints -----------------------------------------------------------------
+    def _add_joint(self, acc: tuple[list, list], deser, raw, msgtype, t_ns) -> None:
+        try:
+            msg = deser(raw, msgtype)
+        except Exception:  # noqa: BLE001 - one undecodable reading: the nearest other one is used
+            self.warnings.append(f"{self.path}: skipped an undecodable joint message at t={t_ns} ns")
+            return
+        acc[0].append(_header_ns(msg, t_ns))
+        acc[1].append(np.asarray(msg.position, dtype=float).ravel())
+
+    def joint_tables(self) -> tuple[JointTable, JointTable]:
+        """(joints, jaw) tables, read on first use (pass 1)."""
+        if self._table is None:
+            acc = {self.joint_topic: ([], []), self.jaw_topic: ([], [])}
+            try:
+                with self._reader() as r:
+                    conns = [c for c in r.connections if c.topic in acc]
+                    for c, t, raw in r.messages(connections=conns):
+                        self._add_joint(acc[c.topic], r.deserialize, raw, c.msgtype, t)
+            except InputError:
+                raise
+            except Exception as e:  # noqa: BLE001
+                raise InputError(f"{self.path}: reading {self.joint_topic} failed ({_one_line(e)})") from None
+            self._table = (JointTable.build(*acc[self.joint_topic]), JointTable.build(*acc[self.jaw_topic]))
+        return self._table
+
+    # -- pass 2: images -----------------------------------------------------------------
+    def _image_messages(self) -> Iterator[tuple[int, int, bytes, object]]:
+        """(bag time ns, raw bytes, deserializer) per left image, in bag order."""
+        if self.scan:
+            from graphtrack.io.bag1scan import Bag1Scan
+            from rosbags.typesys import Stores, get_typestore
+
+            store = get_typestore(Stores.ROS1_NOETIC)
+            for c, t, raw in Bag1Scan(self.path).messages():
+                if c.topic == self.image_topic:
+                    yield t, raw, store.deserialize_ros1
+            return
+        with self._reader() as r:
+            conns = [c for c in r.connections if c.topic == self.image_topic]
+            yield from ((t, raw, r.deserialize) for _, t, raw in r.messages(connections=conns))
+
+    def frames(self, start: int = 0):
+        """Yield, per left image from ``start`` on, a Frame (unchecked) or a FrameError.
+
+        Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
+        nearest jaw message's first value, NaN when the bag has no jaw topic.
+        """
+        from graphtrack.estimate.base import Frame
+
+        joints, jaw = self.joint_tables()
+        index = -1
+        it = self._image_messages()
+        while True:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            except Exception as e:  # noqa: BLE001
+                raise InputError(f"{self.path}: unreadable after frame {index} "
+                                 f"({_one_line(e)})") from None
+            index += 1
+            if index >= self.n_images:  # truncated bag: images past the last joint reading
+                return
+            if index < start:
+                continue
+            t_bag, raw, deser = item
+            try:
+                msg = deser(raw, self.image_type)
+                stamp_ns = _header_ns(msg, t_bag)
+                image = decode_image(msg, self.image_type, f"{self.path}: {self.image_topic}")
+            except InputError:
+                raise
+            except Exception as e:  # noqa: BLE001 - undecodable message or image
+                yield FrameError(index, "corrupt_image", f"{self.image_topic}: {_one_line(e)}")
+                continue
+            if self.has_jaw:
+                j = jaw.nearest(stamp_ns)
+                jaw_value = float(j[0]) if j.size else float("nan")
+            else:
+                jaw_value = float("nan")
+            yield Frame(index, stamp_ns / 1e9, image, joints.nearest(stamp_ns).copy(), jaw_value)
+
+    def stamps(self) -> np.ndarray:
+        """Header stamps (s) of the left images, in frame order (one extra pass, no decoding)."""
+        if self._stamps is None:
+            with self._reader() as r:
+                conns = [c for c in r.connections if c.topic == self.image_topic]
+                self._stamps = np.array([_raw_header_ns(raw, self.ros2) or t
+                                         for _, t, raw in r.messages(connections=conns)], dtype=np.int64)
+        return self._stamps / 1e9
+
+
+def _one_line(e: BaseException) -> str:
+    s = str(e).strip().splitlines()
+    return (s[0] if s else type(e).__name__)[:300]
+
+
+# -- the writer -------------------------------------------------------------------------
+def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, image_format: str = "png",
+              arm: str = "PSM1", chunk_compression: str | None = None) -> int:
+    """Write a ROS 1 bag in the sequence format, streaming (one frame in memory at a time).
+
+    Parameters
+    ----------
+    path : the ``.bag`` file to create (must not exist).
+    frames : iterable of objects with ``stamp`` (s), ``image`` (H x W x 3 uint8 BGR),
+        ``joints`` (n,) rad/m and ``jaw`` (rad, NaN = no gripper: no jaw message).
+    compressed : write ``/stereo/left/image/compressed`` (CompressedImage, ``image_format``
+        "png" or "jpeg") instead of raw ``rgb8`` Images on ``/stereo/left/image``.
+    chunk_compression : None, "bz2" or "lz4" (bag-level compression).
+
+    Every message's header stamp and bag record time is the frame's stamp.
+    Returns the number of frames written.
+    """
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    if image_format not in ("png", "jpeg", "jpg"):
+        raise ValueError(f"image_format must be png or jpeg, got {image_format!r}")
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    ext = ".png" if image_format == "png" else ".jpg"
+    writer = Writer(Path(path))
+    if chunk_compression:
+        writer.set_compression(Writer.CompressionFormat[chunk_compression.upper()])
+    n = 0
+    with writer:
+        img_type = COMPRESSED_TYPE if compressed else IMAGE_TYPE
+        c_img = writer.add_connection(COMPRESSED_TOPIC if compressed else IMAGE_TOPIC, img_type, typestore=ts)
+        c_joint = writer.add_connection(joint_topic(arm), JOINT_TYPE, typestore=ts)
+        c_jaw = None
+        for f in frames:
+            t = to_ns(float(f.stamp))
+            if t < 0:
+                raise ValueError(f"frame {n}: negative stamp {f.stamp}")
+            hdr = T["std_msgs/msg/Header"](seq=n, stamp=T["builtin_interfaces/msg/Time"](
+                sec=t // 1_000_000_000, nanosec=t % 1_000_000_000), frame_id="left")
+            img = np.ascontiguousarray(f.image, dtype=np.uint8)
+            if compressed:
+                ok, buf = cv2.imencode(ext, img)
+                if not ok:
+                    raise ValueError(f"frame {n}: cv2.imencode({ext}) failed")
+                msg = T[COMPRESSED_TYPE](header=hdr, format="png" if ext == ".png" else "jpeg",
+                                         data=buf.ravel())
+            else:
+                mono = img.ndim == 2
+                data = img if mono else cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+                msg = T[IMAGE_TYPE](header=hdr, height=img.shape[0], width=img.shape[1],
+                                    encoding="mono8" if mono else "rgb8", is_bigendian=0,
+                                    step=img.shape[1] * (1 if mono else 3), data=data.ravel())
+            writer.write(c_img, t, ts.serialize_ros1(msg, img_type))
+            writer.write(c_joint, t, ts.serialize_ros1(_joint_state(T, hdr, f.joints), JOINT_TYPE))
+            jaw = float(getattr(f, "jaw", float("nan")))
+            if math.isfinite(jaw):
+                if c_jaw is None:
+                    c_jaw = writer.add_connection(jaw_topic(arm), JOINT_TYPE, typestore=ts)
+                writer.write(c_jaw, t, ts.serialize_ros1(_joint_state(T, hdr, [jaw]), JOINT_TYPE))
+            n += 1
+    return n
+
+
+def _joint_state(T, hdr, position) -> object:
+    empty = np.zeros(0, dtype=np.float64)
+    return T[JOINT_TYPE](header=hdr, name=[], position=np.asarray(position, dtype=np.float64).ravel(),
+                         velocity=empty, effort=empty)
