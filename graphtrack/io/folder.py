@@ -1,0 +1,192 @@
+"""The plain-folder form of a sequence (format doc, "The plain folder form").
+
+::
+
+    frames/000000.png, frames/000001.png, ...   (or video.mp4): the raw left images
+    joints.csv   header  frame,stamp,q1,...,qn,jaw   one row per frame
+
+``frame`` is the 0-based frame number and must equal the row number; ``stamp``
+is in seconds; ``q1..qn`` are the DH joints (rad / m); ``jaw`` is the jaw
+opening (rad), empty or ``nan`` for tools without a gripper. Frame k's image
+is ``frames/<k>.<ext>`` with k zero-padded to 6 digits (any image extension
+OpenCV reads), or the k-th frame of ``video.mp4``. Images are read one at a
+time; a video is decoded sequentially with ``cv2.VideoCapture``.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Iterable
+
+import cv2
+import numpy as np
+
+from graphtrack.errors import FrameError, InputError
+
+IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+
+
+def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """joints.csv -> (stamps (N,) s, joints (N, n), jaw (N,) NaN when empty).
+
+    Raises InputError naming the file (and line) on a wrong header, a wrong
+    field count, a non-number, or a ``frame`` that is not the row number.
+    """
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    with path.open(newline="") as f:
+        reader = csv.reader(f)
+        header = [h.strip() for h in next(reader, [])]
+        n = len(header) - 3
+        if (n < 1 or header[:2] != ["frame", "stamp"] or header[-1] != "jaw"
+                or header[2:-1] != [f"q{i}" for i in range(1, n + 1)]):
+            raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw', "
+                             f"found {','.join(header)!r}")
+        stamps, joints, jaw = [], [], []
+        for line, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise InputError(f"{path}: line {line} has {len(row)} fields, expected {len(header)}")
+            try:
+                frame = int(row[0])
+                vals = [float(v) if v.strip() else math.nan for v in row[1:]]
+            except ValueError:
+                raise InputError(f"{path}: line {line} holds a value that is not a number") from None
+            if frame != len(stamps):
+                raise InputError(f"{path}: line {line}: frame {frame}, expected {len(stamps)} "
+                                 "(frames must be 0, 1, 2, ... in order)")
+            stamps.append(vals[0])
+            joints.append(vals[1:-1])
+            jaw.append(vals[-1])
+    return (np.array(stamps, dtype=float), np.array(joints, dtype=float).reshape(-1, n),
+            np.array(jaw, dtype=float))
+
+
+class FolderSource:
+    """frames/ (or video.mp4) + joints.csv; validated at construction, streamed later.
+
+    Attributes: path, n_images (= rows of joints.csv), has_jaw, truncated (False),
+    warnings.
+    """
+
+    def __init__(self, root: str | Path):
+        self.path = Path(root)
+        self.truncated = False
+        self.warnings: list[str] = []
+        self._stamps, self._joints, self._jaw = read_joints_csv(self.path / "joints.csv")
+        self.n_images = len(self._stamps)
+        self.has_jaw = bool(np.any(np.isfinite(self._jaw)))
+        frames_dir = self.path / "frames"
+        self.video = None
+        self._files: dict[int, Path] = {}
+        if frames_dir.is_dir():
+            for p in frames_dir.iterdir():
+                if p.name.startswith(".") or p.suffix.lower() not in IMAGE_EXTS:
+                    continue
+                if not p.stem.isdigit():
+                    raise InputError(f"{p}: image names in frames/ must be frame numbers (000000.png)")
+                if int(p.stem) in self._files:
+                    raise InputError(f"{p}: frame {int(p.stem)} has two images in {frames_dir}")
+                self._files[int(p.stem)] = p
+            if self.n_images and not self._files:
+                raise InputError(f"{frames_dir}: no images")
+            missing = self.n_images - sum(1 for k in self._files if k < self.n_images)
+            if missing:
+                self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")
+        elif (self.path / "video.mp4").is_file():
+            self.video = self.path / "video.mp4"
+        else:
+            raise InputError(f"{self.path}: neither frames/ nor video.mp4 holds the images")
+
+    def __len__(self) -> int:
+        return int(self.n_images)
+
+    def stamps(self) -> np.ndarray:
+        """Frame stamps (s) from joints.csv."""
+        return self._stamps.copy()
+
+    def _images(self, start: int):
+        """Yield (index, BGR image or None, error message) from ``start`` on."""
+        if self.video is None:
+            for k in range(start, self.n_images):
+                p = self._files.get(k)
+                if p is None:
+                    yield k, None, f"no image file frames/{k:06d}.* (missing)"
+                    continue
+                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
+                yield k, img, None if img is not None else f"{p.name} does not decode"
+            return
+        cap = cv2.VideoCapture(str(self.video))
+        if not cap.isOpened():
+            raise InputError(f"{self.video}: cannot open the video")
+        try:
+            ended = False
+            for k in range(start):
+                if not cap.grab():
+                    ended = True
+                    break
+            for k in range(start, self.n_images):
+                ok, img = (False, None) if ended else cap.read()
+                if not ok:
+                    ended = True
+                    yield k, None, f"{self.video.name} has no decodable frame {k}"
+                else:
+                    yield k, img, None
+        finally:
+            cap.release()
+
+    def frames(self, start: int = 0):
+        """Yield, per row of joints.csv from ``start`` on, a Frame (unchecked) or a FrameError."""
+        from graphtrack.estimate.base import Frame
+
+        for k, img, err in self._images(start):
+            if err is not None:
+                yield FrameError(k, "corrupt_image", err)
+            else:
+                yield Frame(k, float(self._stamps[k]), img, self._joints[k].copy(), float(self._jaw[k]))
+
+
+def write_folder(out_dir: str | Path, frames: Iterable, video: bool = False, fps: float = 30.0,
+                 image_ext: str = "png") -> int:
+    """Write the plain-folder form, streaming: frames/NNNNNN.<ext> (or video.mp4) + joints.csv.
+
+    ``frames``: objects with stamp (s), image (H x W x 3 uint8 BGR), joints (n,)
+    and jaw (rad or NaN). joints.csv is flushed after every row. ``video=True``
+    writes an mp4v-coded video.mp4 (lossy) instead of image files.
+    Returns the number of frames written.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    if not video:
+        (out / "frames").mkdir(exist_ok=True)
+    writer, n, width = None, 0, None
+    with (out / "joints.csv").open("w", newline="") as f:
+        try:
+            for fr in frames:
+                q = np.asarray(fr.joints, dtype=float).ravel()
+                if width is None:
+                    width = q.size
+                    f.write(",".join(["frame", "stamp"] + [f"q{i}" for i in range(1, width + 1)] + ["jaw"]) + "\n")
+                elif q.size != width:
+                    raise ValueError(f"frame {n}: {q.size} joints, earlier frames had {width}")
+                img = np.ascontiguousarray(fr.image, dtype=np.uint8)
+                if video:
+                    if writer is None:
+                        writer = cv2.VideoWriter(str(out / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"),
+                                                 float(fps), (img.shape[1], img.shape[0]))
+                        if not writer.isOpened():
+                            raise ValueError(f"{out / 'video.mp4'}: OpenCV cannot write mp4v video")
+                    writer.write(img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
+                elif not cv2.imwrite(str(out / "frames" / f"{n:06d}.{image_ext}"), img):
+                    raise ValueError(f"frame {n}: cv2.imwrite failed")
+                jaw = float(getattr(fr, "jaw", math.nan))
+                f.write(",".join([str(n), repr(float(fr.stamp))] + [repr(float(v)) for v in q]
+                                 + [repr(jaw) if math.isfinite(jaw) else "nan"]) + "\n")
+                f.flush()
+                n += 1
+        finally:
+            if writer is not None:
+                writer.release()
+    return n

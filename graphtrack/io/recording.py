@@ -1,0 +1,202 @@
+"""Open a sequence folder (format doc) and stream its frames.
+
+    rec = open_recording("seq/")            # validates everything cheap, reads no image
+    len(rec)                                # frames, from the bag index / joints.csv
+    for item in rec.frames():               # Frame or FrameError, in frame order
+        if isinstance(item, FrameError):
+            skipped[item.reason] += 1
+            continue
+        ...
+
+Whole-recording problems raise :class:`~graphtrack.errors.InputError` with one
+line naming the file, topic or field: a missing robot.json,
+camera_calibration.yaml or handeye.yaml; no recording or more than one bag; a
+bag without the left image topic or the joint topic; an unreadable bag; a
+wrong joints.csv header.
+
+Per-frame problems are YIELDED (not raised) as
+:class:`~graphtrack.errors.FrameError` with these ``reason`` keys:
+
+- ``corrupt_image``: the image message / file / video frame does not decode;
+- ``image_size``: the image size differs from ``ImageSize`` in camera_calibration.yaml;
+- ``joint_count``: the joint reading does not hold the expected number of DH joints;
+- ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf.
+
+Truncated ROS 1 bags (index missing or damaged) are read up to the damage:
+all complete frames are yielded, ``rec.truncated`` is True and ``rec.warnings``
+holds a line for the user. See :mod:`graphtrack.io.bag`.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from graphtrack.errors import FrameError, InputError
+from graphtrack.geometry.camera import Calibration, load_calibration
+from graphtrack.io.bag import BagSource
+from graphtrack.io.folder import FolderSource
+from graphtrack.io.handeye import load_handeye
+from graphtrack.io.labels import read_labels
+
+REQUIRED = ("robot.json", "camera_calibration.yaml", "handeye.yaml")
+
+
+@dataclass
+class Recording:
+    """An opened sequence.
+
+    path: the sequence folder; calibration: intrinsics (left, optional right);
+    handeye: nominal camera-from-base 4x4 (METRES); robot: what the robot loader
+    returned for robot.json; labels: {frame: (u, v) px} from labels.csv, or None;
+    n_joints: the DH joint count every reading must have (None: not checked);
+    source: the BagSource or FolderSource behind the frames.
+    """
+
+    path: Path
+    calibration: Calibration
+    handeye: np.ndarray
+    robot: object
+    labels: dict[int, np.ndarray] | None
+    n_joints: int | None
+    source: BagSource | FolderSource
+    notes: list[str] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.source)
+
+    @property
+    def warnings(self) -> list[str]:
+        """Lines for the user: recording choices made, damage found, messages skipped."""
+        return self.notes + list(self.source.warnings)
+
+    @property
+    def kind(self) -> str:
+        """``"bag"`` (ROS 1), ``"ros2"`` or ``"folder"``."""
+        if isinstance(self.source, FolderSource):
+            return "folder"
+        return "ros2" if self.source.ros2 else "bag"
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(height, width) px of the raw images, from camera_calibration.yaml."""
+        cam = self.calibration.left
+        return int(cam.height), int(cam.width)
+
+    @property
+    def has_jaw(self) -> bool:
+        """True when the recording carries jaw readings (else every Frame.jaw is NaN)."""
+        return bool(self.source.has_jaw)
+
+    @property
+    def truncated(self) -> bool:
+        """True when the bag was damaged and read only up to the damage."""
+        return bool(self.source.truncated)
+
+    @property
+    def stamps(self) -> np.ndarray:
+        """Frame stamps (s). Free for folders; one pass over the image messages for bags."""
+        return self.source.stamps()
+
+    def __iter__(self) -> Iterator[object]:
+        return self.frames()
+
+    def frames(self, start: int = 0, expected_joints: int | None = None) -> Iterator[object]:
+        """Yield a :class:`~graphtrack.estimate.base.Frame` or a FrameError per frame, in order.
+
+        start: first frame index to yield (earlier images are skipped undecoded);
+        expected_joints: DH joint count to enforce (default: ``self.n_joints``).
+        """
+        n_exp = self.n_joints if expected_joints is None else int(expected_joints)
+        h, w = self.image_size
+        has_jaw = self.has_jaw
+        for item in self.source.frames(start):
+            if isinstance(item, FrameError):
+                yield item
+                continue
+            f = item
+            joints = np.asarray(f.joints, dtype=float)
+            if f.image.shape[:2] != (h, w):
+                yield FrameError(f.index, "image_size", f"image is {f.image.shape[1]}x{f.image.shape[0]} px, "
+                                 f"camera_calibration.yaml ImageSize says {w}x{h}")
+            elif n_exp is not None and joints.size != n_exp:
+                yield FrameError(f.index, "joint_count",
+                                 f"joint reading has {joints.size} values, robot.json has {n_exp} DH joints")
+            elif not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(f.jaw)):
+                yield FrameError(f.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {f.jaw}")
+            else:
+                yield f
+
+
+def _dh_count(robot_json: Path) -> int | None:
+    try:
+        doc = json.loads(robot_json.read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"{robot_json}: not valid JSON ({str(e).splitlines()[0]})") from None
+    dh = doc.get("DH_params") if isinstance(doc, dict) else None
+    return len(dh) if isinstance(dh, list) and dh else None
+
+
+def _default_robot_loader(path: Path):
+    from graphtrack.robot.description import load_robot_json  # written in parallel: import lazily
+
+    return load_robot_json(path)
+
+
+def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource, list[str]]:
+    """Pick the recording in a sequence folder: exactly one bag, else the folder form."""
+    bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
+    bags += sorted(p for p in path.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file())
+    if not bags:  # a recording killed before rosbag renamed it: salvaged by scanning
+        bags = sorted(p for p in path.glob("*.bag.active") if p.is_file())
+    folder_form = (path / "frames").is_dir() or (path / "video.mp4").is_file()
+    notes: list[str] = []
+    if len(bags) == 1:
+        if folder_form:
+            notes.append(f"{path}: both {bags[0].name} and frames/ or video.mp4; using the bag")
+        return BagSource(bags[0], arm), notes
+    if folder_form:
+        if bags:
+            notes.append(f"{path}: {len(bags)} bags; using the folder form (frames/ or video.mp4)")
+        return FolderSource(path), notes
+    if not bags:
+        raise InputError(f"{path}: no recording: no .bag file (nor ROS 2 bag folder) and no "
+                         "frames/ or video.mp4 with joints.csv")
+    raise InputError(f"{path}: {len(bags)} bags ({', '.join(b.name for b in bags)}); "
+                     "a sequence holds exactly one")
+
+
+def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | None = None,
+                   expected_joints: int | None = None, arm: str = "PSM1") -> Recording:
+    """Open and validate a sequence folder; no image is read.
+
+    Parameters
+    ----------
+    path : the sequence folder.
+    robot_loader : called with the robot.json path; default
+        ``graphtrack.robot.description.load_robot_json``.
+    expected_joints : DH joints per reading; default: the number of
+        ``DH_params`` in robot.json.
+    arm : the arm whose topics and handeye keys are read (``PSM1``).
+
+    Raises InputError (one line naming the file / topic / field) for
+    whole-recording problems; see the module docstring.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise InputError(f"{path}: not a folder (a sequence is a folder holding {', '.join(REQUIRED)} "
+                         "and a bag or frames/)")
+    for name in REQUIRED:
+        if not (path / name).is_file():
+            raise InputError(f"{path / name}: file not found (every sequence needs {', '.join(REQUIRED)})")
+    n_joints = expected_joints if expected_joints is not None else _dh_count(path / "robot.json")
+    robot = (robot_loader or _default_robot_loader)(path / "robot.json")
+    calibration = load_calibration(path / "camera_calibration.yaml")
+    handeye = load_handeye(path / "handeye.yaml", arm)
+    labels = read_labels(path / "labels.csv") if (path / "labels.csv").is_file() else None
+    source, notes = find_source(path, arm)
+    return Recording(path, calibration, handeye, robot, labels, n_joints, source,
+                     notes=notes)
