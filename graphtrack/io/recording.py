@@ -178,8 +178,8 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
     path : the sequence folder.
     robot_loader : called with the robot.json path; default
         ``graphtrack.robot.description.load_robot_json``.
-    expected_joints : DH joints per reading; default: the number of
-        ``DH_params`` in robot.json.
+    expected_joints : DH joints per reading; default: ``robot.n_dh``, else the
+        number of ``DH_params`` in robot.json.
     arm : the arm whose topics and handeye keys are read (``PSM1``).
 
     Raises InputError (one line naming the file / topic / field) for
@@ -192,8 +192,11 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
     for name in REQUIRED:
         if not (path / name).is_file():
             raise InputError(f"{path / name}: file not found (every sequence needs {', '.join(REQUIRED)})")
-    n_joints = expected_joints if expected_joints is not None else _dh_count(path / "robot.json")
     robot = (robot_loader or _default_robot_loader)(path / "robot.json")
+    n_joints = expected_joints
+    if n_joints is None:
+        n_dh = getattr(robot, "n_dh", None)
+        n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
     handeye = load_handeye(path / "handeye.yaml", arm)
     labels = read_labels(path / "labels.csv") if (path / "labels.csv").is_file() else None
