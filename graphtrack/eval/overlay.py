@@ -1,0 +1,198 @@
+"""overlay.mp4: what the tracker saw and what it concluded, drawn on the RAW images.
+
+Per frame (BGR colours):
+- green: the tool skeleton (robot.json's skeleton_structure) placed with the
+  estimated E and the joint readings, projected WITH distortion;
+- yellow: the detected shaft edges (lines through the whole image) and, thicker,
+  the associated shaft segments;
+- cyan dots: the observation's pixel sets (E_e / E_l) of the pixel models;
+- magenta circles: detected marker centroids;
+- red dot: the estimated tool tip; white cross: the labelled tip (labels.csv).
+
+Detections live in UNDISTORTED pixels; everything is mapped to raw pixels with
+:meth:`graphtrack.geometry.camera.Camera.distort_pixels`, lines as polylines
+sampled along them (a straight undistorted line is curved in the raw image).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+GREEN = (0, 200, 0)
+YELLOW = (0, 255, 255)
+CYAN = (255, 255, 0)
+MAGENTA = (255, 0, 255)
+RED = (0, 0, 255)
+WHITE = (255, 255, 255)
+
+
+def _pts(uv: np.ndarray) -> np.ndarray:
+    return np.round(np.asarray(uv, float) * 16).astype(np.int32)  # 4 fractional bits
+
+
+def line_in_image(rho: float, theta: float, width: int, height: int, margin: float = 0.0) -> np.ndarray | None:
+    """The two ends (2, 2) of cos(t) x + sin(t) y = rho clipped to the image rectangle (or None)."""
+    c, s = np.cos(theta), np.sin(theta)
+    x0, y0, x1, y1 = -margin, -margin, width - 1 + margin, height - 1 + margin
+    cand = []
+    if abs(s) > 1e-12:
+        for x in (x0, x1):
+            y = (rho - c * x) / s
+            if y0 - 1e-9 <= y <= y1 + 1e-9:
+                cand.append((x, y))
+    if abs(c) > 1e-12:
+        for y in (y0, y1):
+            x = (rho - s * y) / c
+            if x0 - 1e-9 <= x <= x1 + 1e-9:
+                cand.append((x, y))
+    if len(cand) < 2:
+        return None
+    cand = np.array(cand)
+    d = np.linalg.norm(cand[:, None] - cand[None], axis=-1)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    return cand[[i, j]]
+
+
+def sample_segment(a: np.ndarray, b: np.ndarray, n: int = 24) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    return (1 - t) * np.asarray(a, float) + t * np.asarray(b, float)
+
+
+def draw_polyline_raw(img: np.ndarray, camera, uv_undistorted: np.ndarray, color, thickness: int = 1) -> None:
+    """Draw a polyline given in undistorted pixels onto the raw image."""
+    raw = camera.distort_pixels(uv_undistorted)
+    raw = raw[np.all(np.isfinite(raw), axis=1)]
+    if len(raw) >= 2:
+        cv2.polylines(img, [_pts(raw).reshape(-1, 1, 2)], False, color, thickness, cv2.LINE_AA, 4)
+
+
+def draw_cross(img, uv, color, size: int = 6, thickness: int = 1) -> None:
+    if uv is None or not np.all(np.isfinite(uv)):
+        return
+    u, v = float(uv[0]), float(uv[1])
+    for a, b in (((u - size, v - size), (u + size, v + size)), ((u - size, v + size), (u + size, v - size))):
+        cv2.line(img, tuple(_pts(a)), tuple(_pts(b)), color, thickness, cv2.LINE_AA, 4)
+
+
+def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection=None, observation=None,
+                 tip_uv: np.ndarray | None = None, label_uv: np.ndarray | None = None,
+                 text: str | None = None) -> np.ndarray:
+    """Return a copy of the raw BGR image with the overlay of one frame drawn on it."""
+    from graphtrack.robot.features import base_features
+
+    cam = ctx.camera
+    img = np.ascontiguousarray(image.copy() if image is not None
+                               else np.zeros((cam.height, cam.width, 3), np.uint8))
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    h, w = img.shape[:2]
+    # skeleton through E and the readings, projected with distortion
+    if E is not None and np.all(np.isfinite(E)):
+        feats = base_features(ctx.robot, q).transformed(E)
+        for seg in np.asarray(feats.skeleton).reshape(-1, 2, 3):
+            pts3 = sample_segment(seg[0], seg[1], 16)
+            if np.any(pts3[:, 2] <= 1e-6):
+                continue
+            raw = cam.project_raw(pts3)
+            if np.all(np.isfinite(raw)):
+                cv2.polylines(img, [_pts(raw).reshape(-1, 1, 2)], False, GREEN, 2, cv2.LINE_AA, 4)
+    if detection is not None:
+        for rho, theta in np.asarray(detection.shaft_lines, float).reshape(-1, 2):
+            ends = line_in_image(rho, theta, w, h, margin=0.05 * max(w, h))
+            if ends is not None:
+                draw_polyline_raw(img, cam, sample_segment(ends[0], ends[1], 48), YELLOW, 1)
+        for x1, y1, x2, y2 in np.asarray(detection.shaft_segments, float).reshape(-1, 4):
+            draw_polyline_raw(img, cam, sample_segment((x1, y1), (x2, y2), 16), YELLOW, 3)
+    if observation is not None:
+        for pix in getattr(observation, "pixels", []) or []:
+            pix = np.asarray(pix, float).reshape(-1, 2)
+            if len(pix):
+                for u, v in _pts(cam.distort_pixels(pix)) // 16:
+                    if 0 <= u < w and 0 <= v < h:
+                        img[v, u] = CYAN
+    markers = None
+    if detection is not None and len(getattr(detection, "markers", [])):
+        markers = detection.markers
+    elif observation is not None and len(getattr(observation, "markers", [])):
+        markers = observation.markers
+    if markers is not None:
+        for uv in cam.distort_pixels(np.asarray(markers, float).reshape(-1, 2)):
+            if np.all(np.isfinite(uv)):
+                cv2.circle(img, tuple(_pts(uv)), 6 * 16, MAGENTA, 2, cv2.LINE_AA, 4)
+    if tip_uv is not None and np.all(np.isfinite(tip_uv)):
+        cv2.circle(img, tuple(_pts(tip_uv)), 4 * 16, RED, -1, cv2.LINE_AA, 4)
+    if label_uv is not None:
+        draw_cross(img, label_uv, WHITE, 7, 2)
+    if text:
+        cv2.putText(img, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, WHITE, 1, cv2.LINE_AA)
+    return img
+
+
+class OverlayWriter:
+    """Stream overlay frames into an mp4 (OpenCV's mp4v codec) at the camera's raw size.
+
+    ``write(frame, estimate, detection, observation, tip_uv_raw)`` per tracked
+    frame; ``close()`` at the end (also a context manager). ``frames_written``
+    counts the frames.
+    """
+
+    def __init__(self, path: str | Path, ctx, labels: dict | None = None, fps: float = 15.0,
+                 title: str | None = None):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.ctx = ctx
+        self.labels = labels or {}
+        self.fps = float(fps)
+        self.title = title
+        self.size = (int(ctx.camera.width), int(ctx.camera.height))
+        self._writer = None
+        self.frames_written = 0
+
+    def _open(self, size):
+        fourcc = cv2.VideoWriter_fourcc(*"mp4v")
+        self._writer = cv2.VideoWriter(str(self.path), fourcc, self.fps, size)
+        if not self._writer.isOpened():
+            from graphtrack.errors import InputError
+
+            raise InputError(f"{self.path}: cannot open an mp4 video writer")
+
+    def write(self, frame, estimate, detection=None, observation=None, tip_uv_raw=None) -> None:
+        E = None if estimate is None else getattr(estimate, "E", estimate)
+        label = self.labels.get(int(frame.index))
+        text = f"frame {frame.index}" + (f"  {self.title}" if self.title else "")
+        img = draw_overlay(frame.image, self.ctx, frame.q, E, detection, observation, tip_uv_raw, label, text)
+        if self._writer is None:
+            self.size = (img.shape[1], img.shape[0])
+            self._open(self.size)
+        if (img.shape[1], img.shape[0]) != self.size:
+            img = cv2.resize(img, self.size)
+        self._writer.write(img)
+        self.frames_written += 1
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def video_frame_count(path: str | Path) -> int:
+    """Frames in a video, by decoding it (reliable for mp4v files OpenCV wrote)."""
+    cap = cv2.VideoCapture(str(path))
+    n = 0
+    try:
+        while True:
+            ok, _ = cap.read()
+            if not ok:
+                break
+            n += 1
+    finally:
+        cap.release()
+    return n
