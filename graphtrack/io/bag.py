@@ -16,8 +16,10 @@ Truncated ROS 1 bags: a bag whose index is missing or damaged (recording
 killed, disk full, partial copy, ``.bag.active``) is read by a linear scan of its
 records (:mod:`graphtrack.io.bag1scan`): every complete message before the
 damage is used, ``BagSource.truncated`` is True and ``BagSource.warnings`` says
-so. A read error in the middle of an indexed bag, after some frames were
-yielded, raises InputError naming the bag and the frame.
+so. Damage inside an indexed bag (a chunk that does not decompress) raises
+InputError naming the bag: during the joint pass, before any frame, or, if
+only image data is damaged, after the frames before it were yielded ("unreadable
+after frame k"); frame numbers are never shifted silently.
 """
 from __future__ import annotations
 
@@ -68,7 +70,7 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     an encoding graphtrack does not read (every frame would fail alike).
     """
     if msgtype == COMPRESSED_TYPE:
-        buf = np.frombuffer(bytes(msg.data), dtype=np.uint8)
+        buf = np.asarray(msg.data, dtype=np.uint8).ravel()
         img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
         if img is None:
             raise ValueError(f"compressed image ({msg.format!r}) does not decode")
@@ -266,7 +268,8 @@ class BagSource:
             except InputError:
                 raise
             except Exception as e:  # noqa: BLE001
-                raise InputError(f"{self.path}: reading {self.joint_topic} failed ({_one_line(e)})") from None
+                raise InputError(f"{self.path}: damaged bag data while reading {self.joint_topic} "
+                                 f"({_one_line(e)})") from None
             self._table = (JointTable.build(*acc[self.joint_topic]), JointTable.build(*acc[self.jaw_topic]))
         return self._table
 

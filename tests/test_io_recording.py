@@ -1,0 +1,541 @@
+"""Recordings in: ROS 1/2 bags and the plain-folder form, round trips, sync, bad input."""
+import json
+import shutil
+import tracemalloc
+from pathlib import Path
+from types import SimpleNamespace as NS
+
+import cv2
+import numpy as np
+import pytest
+
+from graphtrack.errors import FrameError, InputError
+from graphtrack.geometry.camera import Calibration, Camera, save_calibration
+from graphtrack.io.bag import COMPRESSED_TOPIC, IMAGE_TOPIC, decode_image, write_bag
+from graphtrack.io.folder import write_folder
+from graphtrack.io.handeye import save_handeye
+from graphtrack.io.recording import open_recording
+
+H, W = 48, 64
+JOINTS, JAW = "/dvrk/PSM1/state_joint_current", "/dvrk/PSM1/state_jaw_current"
+NO_ROBOT = {"robot_loader": lambda p: None}
+
+
+# -- helpers --------------------------------------------------------------------------------
+def make_frames(n=8, h=H, w=W, jaw=True, seed=0, t0=1_600_000_000.0):
+    rng = np.random.default_rng(seed)
+    return [NS(stamp=t0 + i * 0.05, image=rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
+               joints=rng.normal(size=6), jaw=0.01 * i if jaw else float("nan")) for i in range(n)]
+
+
+def write_meta(seq: Path, h=H, w=W, n_dh=6, labels=None):
+    seq.mkdir(parents=True, exist_ok=True)
+    robot = {"DH_params": [{"type": "revolute", "alpha": 0, "A": 0, "theta": 0, "D": 0}] * n_dh,
+             "has_gripper": True}
+    (seq / "robot.json").write_text(json.dumps(robot))
+    K = np.array([[50.0, 0, w / 2], [0, 50.0, h / 2], [0, 0, 1]])
+    save_calibration(seq / "camera_calibration.yaml", Calibration(Camera(K, np.zeros(5), h, w)))
+    T = np.eye(4)
+    T[:3, 3] = [0.01, 0.02, 0.1]
+    save_handeye(seq / "handeye.yaml", T)
+    if labels is not None:
+        (seq / "labels.csv").write_text(labels)
+    return seq
+
+
+def bag_seq(tmp_path, frames=None, name="rec.bag", **kw):
+    seq = write_meta(tmp_path / "seq")
+    write_bag(seq / name, frames if frames is not None else make_frames(), **kw)
+    return seq
+
+
+def typestore(ros2=False):
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+
+
+def msg_header(ts, t_ns, ros2=False):
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+    return T["std_msgs/msg/Header"](stamp=stamp, frame_id="") if ros2 else \
+        T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="")
+
+
+def image_msg(ts, t_ns, img, encoding="bgr8", ros2=False):
+    c = 1 if img.ndim == 2 else img.shape[2]
+    return ts.types["sensor_msgs/msg/Image"](
+        header=msg_header(ts, t_ns, ros2), height=img.shape[0], width=img.shape[1], encoding=encoding,
+        is_bigendian=0, step=img.shape[1] * c, data=np.ascontiguousarray(img).ravel())
+
+
+def joint_msg(ts, t_ns, pos, ros2=False):
+    e = np.zeros(0)
+    return ts.types["sensor_msgs/msg/JointState"](header=msg_header(ts, t_ns, ros2), name=[],
+                                                  position=np.asarray(pos, float), velocity=e, effort=e)
+
+
+def write_custom_bag(path, messages, ros2=False, storage="sqlite3"):
+    """messages: (topic, msgtype, record time ns, message) in write order."""
+    ts = typestore(ros2)
+    if ros2:
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        writer = Writer(path, version=9, storage_plugin=StoragePlugin[storage.upper()])
+    else:
+        from rosbags.rosbag1 import Writer
+
+        writer = Writer(path)
+    conns = {}
+    with writer:
+        for topic, msgtype, t, msg in messages:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=ts)
+            data = ts.serialize_cdr(msg, msgtype) if ros2 else ts.serialize_ros1(msg, msgtype)
+            writer.write(conns[topic], t, data)
+
+
+def items(rec, **kw):
+    return list(rec.frames(**kw))
+
+
+def ok_frames(out):
+    assert all(not isinstance(f, FrameError) for f in out), [str(f) for f in out if isinstance(f, FrameError)]
+    return out
+
+
+# -- bag round trips ------------------------------------------------------------------------
+@pytest.mark.parametrize("compressed,fmt", [(False, "png"), (True, "png")])
+def test_bag_roundtrip_lossless(tmp_path, compressed, fmt):
+    frames = make_frames()
+    seq = bag_seq(tmp_path, frames, compressed=compressed, image_format=fmt)
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.kind == "bag" and len(rec) == len(frames) and rec.image_size == (H, W)
+    assert rec.source.image_topic == (COMPRESSED_TOPIC if compressed else IMAGE_TOPIC)
+    assert rec.has_jaw and not rec.truncated and rec.n_joints == 6 and rec.labels is None
+    np.testing.assert_allclose(rec.handeye[:3, 3], [0.01, 0.02, 0.1])
+    out = ok_frames(items(rec))
+    assert [f.index for f in out] == list(range(len(frames)))
+    for f, ref in zip(out, frames):
+        assert f.image.dtype == np.uint8 and f.image.shape == (H, W, 3)
+        np.testing.assert_array_equal(f.image, ref.image)
+        np.testing.assert_array_equal(f.joints, ref.joints)
+        assert f.jaw == ref.jaw and abs(f.stamp - ref.stamp) < 1e-6
+    np.testing.assert_allclose(rec.stamps, [f.stamp for f in frames], atol=1e-6, rtol=0)
+
+
+def test_bag_roundtrip_jpeg(tmp_path):
+    frames = make_frames()
+    for f in frames:  # smooth images so jpeg is close
+        f.image = cv2.GaussianBlur(f.image, (0, 0), 4)
+    rec = open_recording(bag_seq(tmp_path, frames, compressed=True, image_format="jpeg"), **NO_ROBOT)
+    for f, ref in zip(ok_frames(items(rec)), frames):
+        assert np.abs(f.image.astype(int) - ref.image).mean() < 3
+        np.testing.assert_array_equal(f.joints, ref.joints)
+
+
+def test_bag_without_jaw_topic_gives_nan_jaw(tmp_path):
+    rec = open_recording(bag_seq(tmp_path, make_frames(jaw=False)), **NO_ROBOT)
+    assert not rec.has_jaw
+    assert all(np.isnan(f.jaw) for f in ok_frames(items(rec)))
+
+
+def test_frames_start(tmp_path):
+    frames = make_frames()
+    rec = open_recording(bag_seq(tmp_path, frames), **NO_ROBOT)
+    out = ok_frames(items(rec, start=5))
+    assert [f.index for f in out] == [5, 6, 7]
+    np.testing.assert_array_equal(out[0].image, frames[5].image)
+
+
+def test_labels_and_real_robot_loader(tmp_path):
+    desc = pytest.importorskip("graphtrack.robot.description")
+    psm = pytest.importorskip("graphtrack.robot.psm")
+    seq = bag_seq(tmp_path)
+    (seq / "labels.csv").write_text("frame,u,v\n0,10.5,20.25\n3,1,2\n")
+    desc.save_robot_json(seq / "robot.json", psm.psm_large_needle_driver())
+    rec = open_recording(seq)
+    assert rec.robot.n_dh == 6 and rec.n_joints == 6
+    assert sorted(rec.labels) == [0, 3] and rec.labels[0].tolist() == [10.5, 20.25]
+    assert len(ok_frames(items(rec))) == 8
+
+
+def test_decode_image_encodings():
+    ts = typestore()
+    rng = np.random.default_rng(5)
+    bgr = rng.integers(0, 256, (5, 7, 3), dtype=np.uint8)
+    msg = image_msg(ts, 1, bgr, "bgr8")
+    np.testing.assert_array_equal(decode_image(msg, "sensor_msgs/msg/Image", "x"), bgr)
+    msg = image_msg(ts, 1, bgr[..., ::-1], "rgb8")
+    np.testing.assert_array_equal(decode_image(msg, "sensor_msgs/msg/Image", "x"), bgr)
+    gray = bgr[..., 0]
+    out = decode_image(image_msg(ts, 1, gray, "mono8"), "sensor_msgs/msg/Image", "x")
+    np.testing.assert_array_equal(out, np.repeat(gray[..., None], 3, 2))
+    padded = np.zeros((5, 8, 3), np.uint8)  # step has one pixel of row padding
+    padded[:, :7] = bgr
+    msg = image_msg(ts, 1, padded, "bgr8")
+    msg.width = 7
+    np.testing.assert_array_equal(decode_image(msg, "sensor_msgs/msg/Image", "x"), bgr)
+
+
+# -- synchronisation ------------------------------------------------------------------------
+def test_nearest_header_stamp_sync(tmp_path):
+    """Joints at 7 Hz with offset stamps, written out of stamp order and with record times
+    unrelated to the header stamps: each frame takes the reading with the nearest HEADER stamp."""
+    ts = typestore()
+    s = 10**9
+    img = np.zeros((H, W, 3), np.uint8)
+    img_t = [int(2 * s + k * s / 10) for k in range(10)]           # images at 2.0, 2.1, ...
+    joint_t = [int(1.95 * s + k * s / 7) for k in range(9)]        # joints at 1.95 + k/7
+    jaw_t = [int(2.02 * s + k * s / 4) for k in range(4)]          # jaw at 2.02 + k/4
+    msgs = [(IMAGE_TOPIC, "sensor_msgs/msg/Image", 5 * s + k, image_msg(ts, t, img)) for k, t in enumerate(img_t)]
+    order = [3, 0, 8, 1, 5, 2, 7, 4, 6]
+    msgs += [(JOINTS, "sensor_msgs/msg/JointState", 5 * s + k, joint_msg(ts, joint_t[k], [k] * 6)) for k in order]
+    msgs += [(JAW, "sensor_msgs/msg/JointState", 6 * s, joint_msg(ts, t, [10.0 + k])) for k, t in enumerate(jaw_t)]
+    seq = write_meta(tmp_path / "seq")
+    write_custom_bag(seq / "rec.bag", msgs)
+    out = ok_frames(items(open_recording(seq, **NO_ROBOT)))
+    for f, t in zip(out, img_t):
+        assert f.stamp == pytest.approx(t / 1e9, abs=1e-9)
+        k = int(np.argmin([abs(t - jt) for jt in joint_t]))
+        assert f.joints.tolist() == [float(k)] * 6, (f.index, k)
+        assert f.jaw == 10.0 + int(np.argmin([abs(t - jt) for jt in jaw_t]))
+
+
+def test_sync_tie_takes_earlier_and_zero_stamp_uses_record_time(tmp_path):
+    ts = typestore()
+    s = 10**9
+    img = np.zeros((H, W, 3), np.uint8)
+    msgs = [(JOINTS, "sensor_msgs/msg/JointState", 1, joint_msg(ts, 9 * s, [9.0] * 6)),
+            (JOINTS, "sensor_msgs/msg/JointState", 2, joint_msg(ts, 11 * s, [11.0] * 6)),
+            (JOINTS, "sensor_msgs/msg/JointState", 3, joint_msg(ts, 20 * s, [20.0] * 6)),
+            (IMAGE_TOPIC, "sensor_msgs/msg/Image", 4, image_msg(ts, 10 * s, img)),   # tie 9 / 11
+            (IMAGE_TOPIC, "sensor_msgs/msg/Image", 19 * s, image_msg(ts, 0, img))]   # stamp unset
+    seq = write_meta(tmp_path / "seq")
+    write_custom_bag(seq / "rec.bag", msgs)
+    out = ok_frames(items(open_recording(seq, **NO_ROBOT)))
+    assert out[0].joints[0] == 9.0
+    assert out[1].stamp == 19.0 and out[1].joints[0] == 20.0
+
+
+# -- ROS 2 ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_ros2_bag(tmp_path, storage):
+    ts = typestore(ros2=True)
+    frames = make_frames(5)
+    msgs = []
+    for f in frames:
+        t = int(round(f.stamp * 1e9))
+        msgs += [(IMAGE_TOPIC, "sensor_msgs/msg/Image", t, image_msg(ts, t, f.image, "bgr8", True)),
+                 (JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, f.joints, True)),
+                 (JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, [f.jaw], True))]
+    seq = write_meta(tmp_path / "seq")
+    write_custom_bag(seq / "rec2", msgs, ros2=True, storage=storage)
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.kind == "ros2" and len(rec) == 5
+    for f, ref in zip(ok_frames(items(rec)), frames):
+        np.testing.assert_array_equal(f.image, ref.image)
+        np.testing.assert_array_equal(f.joints, ref.joints)
+        assert f.jaw == ref.jaw
+    np.testing.assert_allclose(rec.stamps, [f.stamp for f in frames], atol=1e-6, rtol=0)
+
+
+# -- streaming --------------------------------------------------------------------------------
+def test_bag_reading_streams(tmp_path):
+    """60 frames of 240x320 (13.8 MB of images): reading them one by one stays far below that."""
+    rng = np.random.default_rng(9)
+    base = rng.integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    frames = (NS(stamp=1.0 + i, image=np.roll(base, i, 0), joints=np.zeros(6), jaw=0.0) for i in range(60))
+    seq = write_meta(tmp_path / "seq", h=240, w=320)
+    write_bag(seq / "rec.bag", frames)
+    rec = open_recording(seq, **NO_ROBOT)
+    tracemalloc.start()
+    n = 0
+    for f in rec.frames():
+        assert not isinstance(f, FrameError)
+        n += 1
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert n == 60 and peak < 6e6, peak
+
+
+# -- truncated / damaged bags ---------------------------------------------------------------
+@pytest.mark.parametrize("frac", [0.2, 0.45, 0.7, 0.9, 0.999])
+def test_truncated_bag_yields_complete_prefix(tmp_path, frac):
+    frames = make_frames(30, h=96, w=128, seed=3)
+    src = tmp_path / "full.bag"
+    write_bag(src, frames)
+    seq = write_meta(tmp_path / "seq", h=96, w=128)
+    data = src.read_bytes()
+    (seq / "rec.bag").write_bytes(data[: int(len(data) * frac)])
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.truncated and any("rec.bag" in w and "damage" in w for w in rec.warnings)
+    out = ok_frames(items(rec))
+    assert len(out) == len(rec) and 0 < len(out) <= 30
+    assert len(out) == 30 or frac < 0.99  # cutting only the index loses no frame
+    assert [f.index for f in out] == list(range(len(out)))
+    for f in out:  # a complete, correctly synchronised prefix
+        np.testing.assert_array_equal(f.image, frames[f.index].image)
+        np.testing.assert_array_equal(f.joints, frames[f.index].joints)
+        assert f.jaw == frames[f.index].jaw
+
+
+@pytest.mark.parametrize("name", ["rec.bag", "rec.bag.active"])
+def test_unindexed_bag_is_read_by_scanning(tmp_path, name):
+    frames = make_frames(12)
+    seq = write_meta(tmp_path / "seq")
+    write_bag(seq / "tmp.bag", frames, chunk_compression="lz4")
+    data = bytearray((seq / "tmp.bag").read_bytes())
+    i = data.index(b"index_pos=") + len(b"index_pos=")
+    data[i:i + 8] = bytes(8)  # what a killed `rosbag record` leaves: index_pos = 0
+    (seq / "tmp.bag").unlink()
+    (seq / name).write_bytes(bytes(data))
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.truncated and len(rec) == 12
+    out = ok_frames(items(rec, start=2))
+    assert [f.index for f in out] == list(range(2, 12))
+    np.testing.assert_array_equal(out[-1].image, frames[-1].image)
+
+
+def test_bag_truncated_before_any_frame(tmp_path):
+    src = tmp_path / "full.bag"
+    write_bag(src, make_frames())
+    seq = write_meta(tmp_path / "seq")
+    (seq / "rec.bag").write_bytes(src.read_bytes()[:4200])
+    with pytest.raises(InputError, match="rec.bag"):
+        open_recording(seq, **NO_ROBOT)
+
+
+def test_damaged_chunk_in_indexed_bag(tmp_path):
+    seq = write_meta(tmp_path / "seq", h=96, w=128)
+    write_bag(seq / "rec.bag", make_frames(30, h=96, w=128), chunk_compression="bz2")
+    data = bytearray((seq / "rec.bag").read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = bytes(64)  # bz2 checks CRCs: this chunk no longer decompresses
+    (seq / "rec.bag").write_bytes(bytes(data))
+    rec = open_recording(seq, **NO_ROBOT)  # the index is intact: opening is fine
+    with pytest.raises(InputError, match=r"rec\.bag: damaged bag data"):
+        items(rec)
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage, not a bag at all" * 10])
+def test_not_a_bag(tmp_path, content):
+    seq = write_meta(tmp_path / "seq")
+    (seq / "rec.bag").write_bytes(content)
+    with pytest.raises(InputError, match=r"rec\.bag: cannot read bag"):
+        open_recording(seq, **NO_ROBOT)
+
+
+# -- whole-recording errors -----------------------------------------------------------------
+@pytest.mark.parametrize("missing", ["robot.json", "camera_calibration.yaml", "handeye.yaml"])
+def test_missing_required_file(tmp_path, missing):
+    seq = bag_seq(tmp_path)
+    (seq / missing).unlink()
+    with pytest.raises(InputError, match=missing.replace(".", r"\.") + ": file not found"):
+        open_recording(seq, **NO_ROBOT)
+
+
+def test_not_a_folder(tmp_path):
+    with pytest.raises(InputError, match="not a folder"):
+        open_recording(tmp_path / "nope", **NO_ROBOT)
+
+
+def test_no_bag(tmp_path):
+    seq = write_meta(tmp_path / "seq")
+    with pytest.raises(InputError, match="no recording"):
+        open_recording(seq, **NO_ROBOT)
+
+
+def test_two_bags(tmp_path):
+    seq = bag_seq(tmp_path)
+    shutil.copy(seq / "rec.bag", seq / "other.bag")
+    with pytest.raises(InputError) as e:
+        open_recording(seq, **NO_ROBOT)
+    assert "2 bags" in str(e.value) and "other.bag" in str(e.value) and "rec.bag" in str(e.value)
+
+
+def test_two_bags_with_folder_form_uses_folder(tmp_path):
+    seq = bag_seq(tmp_path)
+    shutil.copy(seq / "rec.bag", seq / "other.bag")
+    write_folder(seq, make_frames(3))
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.kind == "folder" and len(rec) == 3 and any("2 bags" in w for w in rec.warnings)
+
+
+def test_bag_without_image_topic(tmp_path):
+    ts = typestore()
+    seq = write_meta(tmp_path / "seq")
+    write_custom_bag(seq / "rec.bag", [(JOINTS, "sensor_msgs/msg/JointState", 1, joint_msg(ts, 1, [0] * 6))])
+    with pytest.raises(InputError) as e:
+        open_recording(seq, **NO_ROBOT)
+    assert "rec.bag" in str(e.value) and "/stereo/left/image" in str(e.value)
+
+
+def test_bag_without_joint_topic(tmp_path):
+    ts = typestore()
+    seq = write_meta(tmp_path / "seq")
+    img = np.zeros((H, W, 3), np.uint8)
+    write_custom_bag(seq / "rec.bag", [(IMAGE_TOPIC, "sensor_msgs/msg/Image", 1, image_msg(ts, 1, img))])
+    with pytest.raises(InputError) as e:
+        open_recording(seq, **NO_ROBOT)
+    assert "rec.bag" in str(e.value) and JOINTS in str(e.value)
+
+
+def test_unsupported_encoding(tmp_path):
+    ts = typestore()
+    seq = write_meta(tmp_path / "seq")
+    img = np.zeros((H, W, 3), np.uint8)
+    write_custom_bag(seq / "rec.bag", [(IMAGE_TOPIC, "sensor_msgs/msg/Image", 1, image_msg(ts, 1, img, "yuv422")),
+                                       (JOINTS, "sensor_msgs/msg/JointState", 1, joint_msg(ts, 1, [0] * 6))])
+    with pytest.raises(InputError, match="yuv422"):
+        items(open_recording(seq, **NO_ROBOT))
+
+
+# -- per-frame errors -----------------------------------------------------------------------
+def test_corrupt_images_in_bag(tmp_path):
+    ts = typestore()
+    T = ts.types
+    seq = write_meta(tmp_path / "seq")
+    good = cv2.imencode(".png", np.full((H, W, 3), 7, np.uint8))[1].ravel()
+    bad = np.frombuffer(b"\x89PNG\r\n\x1a\n definitely not a png", np.uint8)
+    msgs = []
+    for k in range(4):
+        t = (k + 1) * 10**8
+        msgs.append((COMPRESSED_TOPIC, "sensor_msgs/msg/CompressedImage", t,
+                     T["sensor_msgs/msg/CompressedImage"](header=msg_header(ts, t), format="png",
+                                                          data=bad if k == 2 else good)))
+        msgs.append((JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, [k] * 6)))
+    write_custom_bag(seq / "rec.bag", msgs)
+    out = items(open_recording(seq, **NO_ROBOT))
+    assert [type(f).__name__ for f in out] == ["Frame", "Frame", "FrameError", "Frame"]
+    assert out[2].reason == "corrupt_image" and out[2].frame == 2
+    assert out[3].joints[0] == 3.0
+
+
+def test_short_raw_image_is_corrupt(tmp_path):
+    ts = typestore()
+    seq = write_meta(tmp_path / "seq")
+    msg = image_msg(ts, 5, np.zeros((H, W, 3), np.uint8))
+    msg.data = msg.data[:100]
+    write_custom_bag(seq / "rec.bag", [(IMAGE_TOPIC, "sensor_msgs/msg/Image", 5, msg),
+                                       (JOINTS, "sensor_msgs/msg/JointState", 5, joint_msg(ts, 5, [0] * 6))])
+    (err,) = items(open_recording(seq, **NO_ROBOT))
+    assert isinstance(err, FrameError) and err.reason == "corrupt_image"
+
+
+def test_image_size_mismatch(tmp_path):
+    seq = write_meta(tmp_path / "seq", h=H + 2, w=W)
+    write_bag(seq / "rec.bag", make_frames(3))
+    out = items(open_recording(seq, **NO_ROBOT))
+    assert [f.reason for f in out] == ["image_size"] * 3
+    assert "64x48" in str(out[0]) and "64x50" in str(out[0])
+
+
+def test_nan_joints(tmp_path):
+    frames = make_frames(4)
+    frames[1].joints[3] = np.nan
+    frames[2].joints[0] = np.inf
+    out = items(open_recording(bag_seq(tmp_path, frames), **NO_ROBOT))
+    assert [getattr(f, "reason", None) for f in out] == [None, "nan_joints", "nan_joints", None]
+
+
+def test_joint_count(tmp_path):
+    seq = bag_seq(tmp_path, make_frames(3))
+    out = items(open_recording(seq, **NO_ROBOT), expected_joints=7)
+    assert [f.reason for f in out] == ["joint_count"] * 3
+    write_meta(seq, n_dh=7)  # robot.json now has 7 DH joints: the default expectation follows
+    out = items(open_recording(seq, **NO_ROBOT))
+    assert [f.reason for f in out] == ["joint_count"] * 3 and "7 DH joints" in str(out[0])
+    assert len(ok_frames(items(open_recording(seq, expected_joints=6, **NO_ROBOT)))) == 3
+
+
+# -- plain-folder form ----------------------------------------------------------------------
+def test_folder_roundtrip(tmp_path):
+    frames = make_frames(6)
+    frames[4].jaw = float("nan")
+    seq = write_meta(tmp_path / "seq")
+    assert write_folder(seq, frames) == 6
+    assert (seq / "joints.csv").read_text().splitlines()[0] == "frame,stamp,q1,q2,q3,q4,q5,q6,jaw"
+    assert sorted(p.name for p in (seq / "frames").iterdir())[:2] == ["000000.png", "000001.png"]
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.kind == "folder" and len(rec) == 6 and rec.has_jaw
+    out = items(rec)
+    assert out[4].reason == "nan_joints"  # this recording has jaw readings: a NaN one is bad
+    for f in out[:4] + out[5:]:
+        ref = frames[f.index]
+        np.testing.assert_array_equal(f.image, ref.image)
+        assert f.joints.tolist() == ref.joints.tolist() and f.jaw == ref.jaw and f.stamp == ref.stamp
+    assert rec.stamps.tolist() == [f.stamp for f in frames]
+    assert [getattr(f, "index", getattr(f, "frame", None)) for f in items(rec, start=3)] == [3, 4, 5]
+
+
+def test_folder_video(tmp_path):
+    frames = make_frames(10, jaw=False)
+    for f in frames:
+        f.image = cv2.GaussianBlur(f.image, (0, 0), 5)
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, frames, video=True)
+    assert (seq / "video.mp4").is_file() and not (seq / "frames").exists()
+    rec = open_recording(seq, **NO_ROBOT)
+    assert not rec.has_jaw and len(rec) == 10
+    out = ok_frames(items(rec))
+    for f in out:
+        assert np.abs(f.image.astype(int) - frames[f.index].image).mean() < 12
+        assert f.joints.tolist() == frames[f.index].joints.tolist() and np.isnan(f.jaw)
+    later = ok_frames(items(rec, start=7))
+    assert [f.index for f in later] == [7, 8, 9]
+    np.testing.assert_array_equal(later[0].image, out[7].image)
+
+
+def test_folder_video_shorter_than_joints(tmp_path):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(4), video=True)
+    with (seq / "joints.csv").open("a") as f:
+        f.write("4,5.0,0,0,0,0,0,0,0.1\n")
+    out = items(open_recording(seq, **NO_ROBOT))
+    assert len(out) == 5 and out[4].reason == "corrupt_image" and "video.mp4" in str(out[4])
+
+
+def test_folder_corrupt_and_missing_images(tmp_path):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(4))
+    (seq / "frames" / "000001.png").write_bytes(b"not a png")
+    (seq / "frames" / "000002.png").unlink()
+    rec = open_recording(seq, **NO_ROBOT)
+    out = items(rec)
+    assert [getattr(f, "reason", None) for f in out] == [None, "corrupt_image", "corrupt_image", None]
+    assert "missing" in str(out[2]) and any("1 of 4 frames have no image" in w for w in rec.warnings)
+
+
+@pytest.mark.parametrize("header", ["frame,stamp,q1,q2,q3,q4,q5,q6",
+                                    "frame,time,q1,q2,q3,q4,q5,q6,jaw",
+                                    "frame,stamp,q1,q3,q2,q4,q5,q6,jaw",
+                                    "frame,stamp,jaw"])
+def test_folder_bad_joints_header(tmp_path, header):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    lines = (seq / "joints.csv").read_text().splitlines()
+    (seq / "joints.csv").write_text("\n".join([header] + lines[1:]) + "\n")
+    with pytest.raises(InputError, match=r"joints\.csv: header must be 'frame,stamp,q1,...,qn,jaw'"):
+        open_recording(seq, **NO_ROBOT)
+
+
+@pytest.mark.parametrize("row,needle", [("5,1.0,0,0,0,0,0,0,0", "frame 5, expected 2"),
+                                        ("2,1.0,0,0,0,0,0,0", "line 4 has 8 fields"),
+                                        ("2,1.0,0,x,0,0,0,0,0", "line 4")])
+def test_folder_bad_joints_rows(tmp_path, row, needle):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    with (seq / "joints.csv").open("a") as f:
+        f.write(row + "\n")
+    with pytest.raises(InputError) as e:
+        open_recording(seq, **NO_ROBOT)
+    assert "joints.csv" in str(e.value) and needle in str(e.value)
+
+
+def test_folder_without_joints_csv(tmp_path):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    (seq / "joints.csv").unlink()
+    with pytest.raises(InputError, match=r"joints\.csv: file not found"):
+        open_recording(seq, **NO_ROBOT)
