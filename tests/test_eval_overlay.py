@@ -1,0 +1,64 @@
+"""overlay.mp4: one video frame per tracked frame, drawn on the raw image."""
+import numpy as np
+import pytest
+
+from graphtrack.eval.overlay import draw_overlay, line_in_image, video_frame_count
+
+FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    from graphtrack.sim.simulate import simulate
+
+    return simulate(tmp_path_factory.mktemp("sim") / "rec", "tissue", frames=FRAMES, seed=5,
+                    size=(270, 480), progress=False, form="folder")
+
+
+def test_track_writes_overlay_with_one_frame_per_tracked_frame(rec, tmp_path):
+    from graphtrack.track import TrackOptions, track
+
+    res = track(rec, tmp_path / "out", TrackOptions(estimator="kinematics"), video=True, progress=False,
+                max_frames=10, quiet=True)
+    video = tmp_path / "out" / "overlay.mp4"
+    assert video.stat().st_size > 0
+    assert res["frames_tracked"] == 10
+    assert video_frame_count(video) == 10
+    import cv2
+
+    cap = cv2.VideoCapture(str(video))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)) == 480 and int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)) == 270
+    cap.release()
+
+
+def test_draw_overlay_marks_tip_label_detection(rec):
+    from graphtrack.detect.base import Detection, Observation
+    from graphtrack.estimate.base import Frame
+    from graphtrack.estimate.context import TrackingContext
+    from graphtrack.io.recording import open_recording
+    from graphtrack.track import tip_pixel
+
+    r = open_recording(rec)
+    ctx = TrackingContext(r.robot, r.calibration.left, r.handeye)
+    frame = next(f for f in r.frames() if isinstance(f, Frame))
+    blank = np.zeros_like(frame.image)
+    tip = tip_pixel(ctx, frame.q, ctx.handeye)
+    det = Detection(shaft_lines=np.array([[100.0, 0.0]]), shaft_segments=np.array([[100.0, 20, 100, 200]]),
+                    markers=np.array([[300.0, 150.0]]))
+    obs = Observation("line-intensities", pixels=[np.array([[50.0, 60.0], [51.0, 60.0]])])
+    img = draw_overlay(blank, ctx, frame.q, ctx.handeye, det, obs, tip, np.array([240.0, 135.0]))
+    assert img.shape == blank.shape and not np.shares_memory(img, blank)
+    u, v = np.round(tip).astype(int)
+    assert tuple(img[v, u]) == (0, 0, 255)            # red estimated tip
+    assert tuple(img[135, 240]) == (255, 255, 255)    # white label cross centre
+    assert (img[..., 1] > 150).any()                  # green skeleton / yellow edges drawn
+    mapped = ctx.camera.distort_pixels(np.array([100.0, 135.0]))
+    x, y = np.round(mapped).astype(int)
+    assert img[y, x - 1: x + 2].max() > 200           # the yellow edge, mapped to raw pixels
+
+
+def test_line_in_image_clips_to_rectangle():
+    ends = line_in_image(100.0, 0.0, 480, 270)  # x = 100
+    np.testing.assert_allclose(sorted(ends[:, 1]), [0.0, 269.0])
+    np.testing.assert_allclose(ends[:, 0], 100.0)
+    assert line_in_image(-50.0, 0.0, 480, 270) is None
