@@ -1,0 +1,75 @@
+"""demo, detect and refine end to end on tiny recordings."""
+import csv
+import json
+
+import pytest
+
+from graphtrack.cli import main
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    from graphtrack.sim.simulate import simulate
+
+    return simulate(tmp_path_factory.mktemp("sim") / "rec", "structured", frames=8, seed=7,
+                    size=(270, 480), progress=False, form="folder")
+
+
+def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
+    pytest.importorskip("graphtrack.detect.observe")
+    monkeypatch.setenv("GRAPHTRACK_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--frames", "6", "--quiet"]) == 0
+    text = capsys.readouterr().out
+    for est in ("kinematics", "pf", "smoother"):
+        assert est in text
+    assert "video:" in text and "plot:" in text
+    recs = sorted(p.name for p in (out / "runs").iterdir())
+    assert len(recs) == 2 and any("tissue" in r for r in recs) and any("structured" in r for r in recs)
+    tissue = next(r for r in recs if "tissue" in r)
+    from graphtrack.eval.overlay import video_frame_count
+
+    assert video_frame_count(out / "runs" / tissue / "smoother-line-intensities" / "overlay.mp4") == 6
+    for r in recs:
+        assert (out / "runs" / r / "pf-line-intensities" / "trajectory.tum").is_file()
+        assert (out / f"accumulated_error_{r}.png").is_file()
+    assert (out / "table.md").is_file()
+    # the cache is reused and finished cells are not recomputed
+    done = out / "runs" / tissue / "pf-line-intensities" / "done.json"
+    before = done.stat().st_mtime_ns
+    assert main(["demo", "--out", str(out), "--frames", "6", "--quiet"]) == 0
+    assert done.stat().st_mtime_ns == before
+
+
+def test_detect_writes_csv_and_video(rec, tmp_path):
+    pytest.importorskip("graphtrack.detect.observe")
+    out = tmp_path / "det"
+    assert main(["detect", str(rec), "--detector", "canny", "--out", str(out), "--max-frames", "5",
+                 "--video", "--quiet"]) == 0
+    with (out / "detections.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 5 and [int(r["frame"]) for r in rows] == list(range(5))
+    for k in ("rho_0", "theta_0", "x1_0", "Ee_0", "El_0", "n_markers", "ms"):
+        assert k in rows[0]
+    assert any(int(r["n_edges"]) > 0 for r in rows)
+    from graphtrack.eval.overlay import video_frame_count
+
+    assert video_frame_count(out / "detections.mp4") == 5
+
+
+def test_detect_bad_recording_exit_2(tmp_path, capsys):
+    assert main(["detect", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    assert "graphtrack: error:" in capsys.readouterr().err
+
+
+def test_refine_is_track_with_batch(rec, tmp_path):
+    from graphtrack.cli import build_parser
+
+    args = build_parser().parse_args(["refine", str(rec), "--out", str(tmp_path / "r")])
+    assert args.estimator == "batch"
+    pytest.importorskip("graphtrack.estimate.batch")
+    pytest.importorskip("graphtrack.detect.observe")
+    assert main(["refine", str(rec), "--out", str(tmp_path / "r"), "--max-frames", "6", "--quiet"]) == 0
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    assert m["estimator"] == "batch" and m["frames_tracked"] == 6
+    assert (tmp_path / "r" / "trajectory.tum").is_file()
