@@ -1,0 +1,21 @@
+"""GTSAM factors tying one frame's detections to the lumped error E_t (a gtsam.Pose3).
+
+Every factor is a ``gtsam.CustomFactor`` on ONE Pose3 key E (camera-from-base)
+whose error function is a small, typed, vectorised numpy function with an
+ANALYTIC Jacobian in GTSAM's right (body) perturbation convention
+
+    E (+) xi = E . Exp(xi),      xi = (omega, v)   (rotation first, as gtsam)
+
+- :mod:`factors.shaft_pixels`: point-to-projected-line residuals of one shaft
+  edge's pixel set (pixel observation models);
+- :mod:`factors.line_parameter`: (rho, theta) of one detected shaft line
+  (polar observation models), angle wrapped;
+- :mod:`factors.marker`: reprojection of the painted markers with Hungarian
+  association and a 20 px gate;
+- :mod:`factors.robust`: the Huber / Cauchy kernels (gtsam's mEstimator
+  definitions), applied per pixel / per marker inside the multi-residual factors;
+- :mod:`factors.limb`: the shared limb-line geometry and its derivatives;
+- :mod:`factors.synthetic`: observations synthesised from the geometry (tests,
+  benchmarks).
+"""
+from factors.robust import RobustKernel, make_kernel  # noqa: F401

@@ -1,0 +1,80 @@
+"""Line-parameter factor: one detected shaft line (rho_d, theta_d) against E.
+
+For the polar observation models. With the projected limb line
+L(E) = (A, B, C) (:mod:`factors.limb`) written WITHOUT canonicalisation as
+
+    theta(E) = atan2(B, A),   rho(E) = -C / s,   s = |(A, B)|
+
+the residual is the wrapped line difference (:func:`graphtrack.geometry.lines.line_difference`)
+
+    r = (d_rho, d_theta) = (rho(E), theta(E)) - (rho_d, theta_d),  d_theta in [-pi/2, pi/2)
+
+where the detected line is taken in whichever of its two representations
+(rho_d, theta_d) / (-rho_d, theta_d + pi) is nearer in angle (so the wrap
+never produces a 2 pi / sign jump), and the nearer projected limb (in the
+whitened metric) is used, re-chosen at every evaluation. Analytic Jacobian:
+
+    d theta/dL = (-B, A, 0)/s^2,   d rho/dL = (C A/s^3, C B/s^3, -1/s)
+
+(the representation flip only changes the constant part of r). Whitening by
+(sigma_rho px, sigma_theta rad) and the robust kernel are a
+``gtsam.noiseModel.Robust`` (2 residuals: per-line robustness is exactly what
+GTSAM's robust model gives). Degenerate view: zero residual, zero Jacobian.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from factors.limb import ShaftAxis, limb_lines, line_matrix
+from factors.robust import RobustKernel, make_kernel
+from graphtrack.geometry.lines import line_difference
+
+
+class LineParameterError:
+    def __init__(self, line: np.ndarray, axis: ShaftAxis, K: np.ndarray,
+                 sigma_rho: float = 3.0, sigma_theta: float = 0.01):
+        self.rho_d, self.theta_d = (float(v) for v in np.asarray(line, float).ravel()[:2])
+        self.axis = axis
+        self.M = line_matrix(np.asarray(K, float))
+        self.sig = np.array([sigma_rho, sigma_theta], float)
+        self.limb = -1
+
+    def evaluate(self, E: np.ndarray, jacobian: bool = True):
+        """Unwhitened residual (d_rho px, d_theta rad) and its (2, 6) Jacobian."""
+        L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
+        if not valid:
+            self.limb = -1
+            return np.zeros(2), (np.zeros((2, 6)) if jacobian else None)
+        A, B, C = L[:, 0], L[:, 1], L[:, 2]
+        s = np.hypot(A, B)
+        theta = np.arctan2(B, A)
+        rho = -C / s
+        drho, dth = line_difference(rho, theta, self.rho_d, self.theta_d)
+        w = (drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2
+        i = int(np.argmin(w))
+        self.limb = i
+        r = np.array([drho[i], dth[i]])
+        if not jacobian:
+            return r, None
+        a, b, c, si = A[i], B[i], C[i], s[i]
+        dth_dL = np.array([-b, a, 0.0]) / si ** 2
+        drho_dL = np.array([c * a / si ** 3, c * b / si ** 3, -1.0 / si])
+        J = np.vstack([drho_dL @ dL[i], dth_dL @ dL[i]])
+        return r, J
+
+    def __call__(self, this, values, H):
+        E = values.atPose3(this.keys()[0]).matrix()
+        r, J = self.evaluate(E, H is not None)
+        if H is not None:
+            H[0] = J
+        return r
+
+
+def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,
+                          sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy"):
+    """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta)."""
+    import gtsam
+
+    fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta)
+    noise = make_kernel(kernel).gtsam_noise(gtsam.noiseModel.Diagonal.Sigmas(fn.sig))
+    return gtsam.CustomFactor(noise, [key], fn)
