@@ -1,0 +1,167 @@
+"""Offline factor-graph refinement of E_t over a whole recording.
+
+Same graph as the online smoother (:mod:`graphtrack.estimate.smoother`):
+prior on frame 0 at E_0, a BetweenFactorPose3 between every pair of
+consecutive frames (always, so gaps in the detections stay solvable), and each
+frame's robust detection factors. ``step`` only records the frame's readings
+and observation and returns a provisional estimate (the previous one: E_0 at
+first, or the online smoother's when ``provisional="smoother"``); ``finish``
+runs Levenberg-Marquardt over all frames, initialised from the provisional
+estimates, and returns the refined Estimates with the marginal covariance of
+each E_t in the left (b, w) perturbation (``covariance=True``; computed with
+one sparse block-tridiagonal pass, O(n)).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.graph import (estimate_extra, frame_factors, gaussian_bw, key,
+                                       left_from_right_cov, split_options)
+
+
+class BatchEstimator:
+    """Levenberg-Marquardt over the whole recording (see the module docstring).
+
+    Options: observation, markers, prior_sigma_b/_w, motion_sigma_b/_w (as
+    the smoother), max_iterations, relative_tolerance, covariance,
+    provisional ("last" | "smoother"), plus FactorOptions.
+    """
+
+    name = "batch"
+    uses_observations = True
+
+    def __init__(self, ctx: TrackingContext, observation: str = "line-intensities", markers: bool = True,
+                 prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
+                 motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
+                 max_iterations: int = 30, relative_tolerance: float = 1e-6,
+                 covariance: bool = True, provisional: str = "last", verbose: bool = False, **options):
+        import gtsam
+
+        self.gtsam = gtsam
+        self.ctx = ctx
+        self.model = observation
+        self.fopts, rest = split_options(dict(options, markers=markers))
+        self.E0 = np.asarray(ctx.handeye, float)
+        self.K = np.asarray(ctx.camera.K, float)
+        self.prior_noise = gaussian_bw(self.E0, prior_sigma_b, prior_sigma_w)
+        self.motion_noise = gaussian_bw(self.E0, motion_sigma_b, motion_sigma_w)
+        self.max_iterations = int(max_iterations)
+        self.relative_tolerance = float(relative_tolerance)
+        self.covariance = bool(covariance)
+        self.verbose = bool(verbose)
+        self.frames: list[tuple[np.ndarray, object]] = []
+        self.initial: list[np.ndarray] = []
+        self.online = None
+        if provisional == "smoother":
+            from graphtrack.estimate.smoother import FixedLagSmootherEstimator
+
+            self.online = FixedLagSmootherEstimator(ctx, observation=observation, markers=markers,
+                                                    prior_sigma_b=prior_sigma_b, prior_sigma_w=prior_sigma_w,
+                                                    motion_sigma_b=motion_sigma_b,
+                                                    motion_sigma_w=motion_sigma_w, covariance=False,
+                                                    **options)
+        self.stats: dict[str, float] = {}
+
+    def step(self, frame: Frame, observation) -> Estimate:
+        self.frames.append((np.asarray(frame.q, float).copy(), observation))
+        if self.online is not None:
+            E = self.online.step(frame, observation).E
+        else:
+            E = self.initial[-1] if self.initial else self.E0
+        self.initial.append(np.asarray(E, float))
+        return Estimate(np.asarray(E, float).copy())
+
+    # -- the whole-recording graph -----------------------------------------------------
+    def build(self):
+        gtsam = self.gtsam
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        for k, (q, obs) in enumerate(self.frames):
+            if k == 0:
+                graph.add(gtsam.PriorFactorPose3(key(0), gtsam.Pose3(self.E0), self.prior_noise))
+            else:
+                graph.add(gtsam.BetweenFactorPose3(key(k - 1), key(k), gtsam.Pose3(), self.motion_noise))
+            for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.model):
+                graph.add(f)
+            values.insert(key(k), gtsam.Pose3(self.initial[k]))
+        return graph, values
+
+    def _chain_marginals(self, graph, result, n: int) -> list[np.ndarray]:
+        """Diagonal 6x6 blocks of the inverse information of the chain (right coordinates).
+
+        Every factor touches one key or two consecutive keys, so the Gauss-Newton
+        information is block tridiagonal: forward/backward block elimination
+        (Rauch-Tung-Striebel form) gives all diagonal blocks of its inverse in O(n).
+        """
+        gtsam = self.gtsam
+        D = np.zeros((n, 6, 6))
+        U = np.zeros((max(n - 1, 0), 6, 6))   # block (k, k+1)
+        lin = graph.linearize(result)
+        for i in range(lin.size()):
+            gf = lin.at(i)
+            if gf is None:
+                continue
+            H = gf.augmentedInformation()[:-1, :-1]
+            keys = [gtsam.Symbol(kk).index() for kk in gf.keys()]
+            if len(keys) == 1:
+                D[keys[0]] += H
+            else:
+                a, b = keys
+                Hs = {(a, a): H[:6, :6], (a, b): H[:6, 6:], (b, a): H[6:, :6], (b, b): H[6:, 6:]}
+                lo, hi = min(a, b), max(a, b)
+                D[lo] += Hs[(lo, lo)]
+                D[hi] += Hs[(hi, hi)]
+                U[lo] += Hs[(lo, hi)]
+        # forward: S_k = D_k - U_{k-1}^T S_{k-1}^-1 U_{k-1}
+        S = np.zeros_like(D)
+        Sinv = np.zeros_like(D)
+        S[0] = D[0]
+        Sinv[0] = np.linalg.inv(S[0])
+        for k in range(1, n):
+            S[k] = D[k] - U[k - 1].T @ Sinv[k - 1] @ U[k - 1]
+            Sinv[k] = np.linalg.inv(S[k])
+        # backward: P_n = S_n^-1, P_k = S_k^-1 + G_k P_{k+1} G_k^T, G_k = S_k^-1 U_k
+        P = np.zeros_like(D)
+        P[n - 1] = Sinv[n - 1]
+        for k in range(n - 2, -1, -1):
+            G = Sinv[k] @ U[k]
+            P[k] = Sinv[k] + G @ P[k + 1] @ G.T
+        return list(P)
+
+    def finish(self) -> list[Estimate]:
+        gtsam = self.gtsam
+        n = len(self.frames)
+        if n == 0:
+            return []
+        t0 = time.perf_counter()
+        graph, values = self.build()
+        t1 = time.perf_counter()
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.max_iterations)
+        params.setRelativeErrorTol(self.relative_tolerance)
+        params.setOrderingType("COLAMD")
+        if self.verbose:
+            params.setVerbosityLM("SUMMARY")
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+        result = opt.optimize()
+        t2 = time.perf_counter()
+        covs = [None] * n
+        if self.covariance:
+            try:
+                covs = self._chain_marginals(graph, result, n)
+            except (RuntimeError, np.linalg.LinAlgError):
+                covs = [None] * n
+        t3 = time.perf_counter()
+        self.stats = {"build_s": t1 - t0, "optimize_s": t2 - t1, "covariance_s": t3 - t2,
+                      "iterations": float(opt.iterations()), "error": float(graph.error(result))}
+        out = []
+        for k in range(n):
+            E = result.atPose3(key(k)).matrix()
+            cov = None if covs[k] is None else left_from_right_cov(E, covs[k])
+            std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
+            out.append(Estimate(E, std, cov, estimate_extra(cov)))
+        return out

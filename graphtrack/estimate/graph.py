@@ -1,0 +1,163 @@
+"""Shared graph-building helpers of the factor-graph estimators (smoother, batch).
+
+Conventions. gtsam perturbs a Pose3 on the right, E = Ê . Exp(xi_R) with
+xi_R = (omega, v) in the BASE frame. The particle filter (and every reported
+std/cov) uses the LEFT, camera-frame perturbation E = Exp(xi_L) . Ê written
+translation first, (b, w). The two are related by the adjoint,
+
+    xi_L(omega, v) = Ad_Ê xi_R,      (b, w) = (v_L, omega_L)
+
+so a left (b, w) covariance S_L becomes the right one Ad_Ê^-1 S Ad_Ê^-T and back.
+The prior and the motion model are specified in the left (b, w) stds, like the
+particle filter's, and converted at the hand-eye E_0 (the error stays small,
+so the adjoint at E_0 is the adjoint at E_t to within the error itself).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from factors.limb import ShaftAxis
+from factors.line_parameter import line_parameter_factor
+from factors.marker import marker_factor
+from factors.robust import make_kernel
+from factors.shaft_pixels import shaft_pixels_factor
+from graphtrack.detect.base import POLAR_MODELS
+from graphtrack.robot.features import base_features
+
+#: (b, w) <-> gtsam (omega, v) reordering
+_PERM = np.array([3, 4, 5, 0, 1, 2])
+
+#: the extra trajectory columns (left perturbation, translation first)
+STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+
+
+def key(k: int) -> int:
+    import gtsam
+
+    return gtsam.symbol("x", int(k))
+
+
+def right_from_left_cov(E: np.ndarray, cov_bw: np.ndarray) -> np.ndarray:
+    """Left (b, w) covariance at E -> gtsam right (omega, v) covariance."""
+    import gtsam
+
+    S = np.asarray(cov_bw, float)[np.ix_(_PERM, _PERM)]          # (omega, v) order
+    Ai = gtsam.Pose3(E).inverse().AdjointMap()
+    C = Ai @ S @ Ai.T
+    return 0.5 * (C + C.T)
+
+
+def left_from_right_cov(E: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
+    """gtsam right (omega, v) covariance at E -> left (b, w) covariance."""
+    import gtsam
+
+    A = gtsam.Pose3(E).AdjointMap()
+    C = A @ np.asarray(cov_right, float) @ A.T
+    C = C[np.ix_(_PERM, _PERM)]
+    return 0.5 * (C + C.T)
+
+
+def left_error(E_true: np.ndarray, E_est: np.ndarray) -> np.ndarray:
+    """(b, w) with E_true = Exp(xi_L) . E_est (gtsam Logmap, reordered)."""
+    import gtsam
+
+    xi = gtsam.Pose3.Logmap(gtsam.Pose3(E_true @ np.linalg.inv(E_est)))
+    return np.asarray(xi)[_PERM]
+
+
+def gaussian_bw(E: np.ndarray, sigma_b: float, sigma_w: float):
+    """gtsam Gaussian noise for isotropic left (b, w) stds at E, in gtsam's right coordinates."""
+    import gtsam
+
+    S = np.diag([sigma_b ** 2] * 3 + [sigma_w ** 2] * 3)
+    return gtsam.noiseModel.Gaussian.Covariance(right_from_left_cov(E, S))
+
+
+@dataclass
+class FactorOptions:
+    """Measurement models of one frame's detections.
+
+    pixel_sigma: px across the line of the shaft pixels; line_sigma_rho (px) /
+    line_sigma_theta (rad): detected (rho, theta); marker_sigma: px;
+    marker_gate: px (association gate); robust: "cauchy" | "huber" | "none"
+    with width robust_k (whitened units, default 2.0 Cauchy / 1.345 Huber);
+    markers: use marker detections; max_pixels: subsample each edge's pixel
+    set to at most this many (deterministic stride; 0 = all).
+    """
+
+    pixel_sigma: float = 1.5
+    line_sigma_rho: float = 3.0
+    line_sigma_theta: float = 0.01
+    marker_sigma: float = 2.0
+    marker_gate: float = 20.0
+    robust: str = "huber"
+    robust_k: float | None = None
+    markers: bool = True
+    max_pixels: int = 0
+
+    @property
+    def kernel(self):
+        return make_kernel(self.robust, self.robust_k)
+
+
+def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
+                  opts: FactorOptions, model: str | None = None) -> list:
+    """The measurement factors of frame k (may be empty: no detections).
+
+    Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
+    edge; polar models: one :func:`factors.line_parameter.line_parameter_factor`
+    per detected line; plus one :func:`factors.marker.marker_factor` for all
+    marker detections. The shaft axis / marker points are the forward
+    kinematics of this frame's readings q (fixed data).
+    """
+    if observation is None:
+        return []
+    out = []
+    has_shaft = observation.has_shaft
+    want_markers = opts.markers and len(observation.markers) > 0
+    if not has_shaft and not want_markers:
+        return out
+    F = base_features(robot, np.asarray(q, float))
+    kern = opts.kernel
+    x = key(k)
+    model = observation.model or model
+    if has_shaft and len(F.shaft_r):
+        axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
+        if model in POLAR_MODELS or (len(observation.lines) and not observation.pixels):
+            for line in np.asarray(observation.lines, float).reshape(-1, 2):
+                if np.all(np.isfinite(line)):
+                    out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
+                                                     opts.line_sigma_theta, kern))
+        else:
+            for px in observation.pixels:
+                px = np.asarray(px, float).reshape(-1, 2)
+                px = px[np.all(np.isfinite(px), axis=1)]
+                if opts.max_pixels and len(px) > opts.max_pixels:
+                    px = px[np.linspace(0, len(px) - 1, opts.max_pixels).astype(int)]
+                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern)
+                if f is not None:
+                    out.append(f)
+    if want_markers and len(F.points):
+        mk = np.asarray(observation.markers, float).reshape(-1, 2)
+        mk = mk[np.all(np.isfinite(mk), axis=1)]
+        f = marker_factor(x, mk, F.points, K, opts.marker_sigma, opts.marker_gate, kern)
+        if f is not None:
+            out.append(f)
+    return out
+
+
+def split_options(options: dict) -> tuple[FactorOptions, dict]:
+    """Pull the FactorOptions fields out of an estimator's **options."""
+    fields = FactorOptions.__dataclass_fields__
+    fo = FactorOptions(**{k: v for k, v in options.items() if k in fields})
+    rest = {k: v for k, v in options.items() if k not in fields}
+    return fo, rest
+
+
+def estimate_extra(cov_bw: np.ndarray | None) -> dict[str, float]:
+    if cov_bw is None:
+        return {c: float("nan") for c in STD_COLUMNS}
+    std = np.sqrt(np.clip(np.diag(cov_bw), 0.0, None))
+    return {c: float(s) for c, s in zip(STD_COLUMNS, std)}
