@@ -126,6 +126,13 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     from graphtrack.io.trajectory import TrajectoryWriter
 
     rec = open_recording(path)
+    if rec.robot.has_gripper and not rec.has_jaw:
+        raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
+                         "(/dvrk/PSM1/state_jaw_current or the joints.csv 'jaw' column); the tool tip "
+                         "would be wrong without them")
+    for w in rec.warnings:
+        if not quiet:
+            print(f"graphtrack: warning: {w}", file=sys.stderr)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = Path(out)
     try:
