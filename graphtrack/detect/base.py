@@ -38,6 +38,10 @@ def _empty(*shape) -> np.ndarray:
     return np.zeros((0,) + shape, dtype=float)
 
 
+def _empty_ids() -> np.ndarray:
+    return np.zeros(0, dtype=int)
+
+
 @dataclass
 class Detection:
     """One frame's detector output (undistorted pixels).
@@ -49,6 +53,10 @@ class Detection:
     shaft_lines: (k, 2) (rho, theta) of those edges.
     markers: (M, 2) marker centroids.
     ms: milliseconds the detector spent.
+    edge_ids: (k,) int: which predicted shaft edge (row of ``predicted_lines``)
+        each of shaft_segments / shaft_lines belongs to; without a prediction,
+        0 and 1 in a deterministic but arbitrary order
+        (:mod:`graphtrack.detect.association`).
     """
 
     segments: np.ndarray = field(default_factory=lambda: _empty(4))
@@ -57,6 +65,7 @@ class Detection:
     shaft_lines: np.ndarray = field(default_factory=lambda: _empty(2))
     markers: np.ndarray = field(default_factory=lambda: _empty(2))
     ms: float = 0.0
+    edge_ids: np.ndarray = field(default_factory=_empty_ids)
 
 
 @dataclass
@@ -70,12 +79,15 @@ class Observation:
     pixels: per detected shaft edge, an (m_i, 2) pixel set (E_e or E_l) for the
         pixel models (empty list for the polar models).
     markers: (M, 2) detected marker centroids (empty when markers are off).
+    edge_ids: (k,) int, which shaft edge each row of ``lines`` (polar models)
+        or each entry of ``pixels`` (pixel models) belongs to (as in Detection).
     """
 
     model: str
     lines: np.ndarray = field(default_factory=lambda: _empty(2))
     pixels: list[np.ndarray] = field(default_factory=list)
     markers: np.ndarray = field(default_factory=lambda: _empty(2))
+    edge_ids: np.ndarray = field(default_factory=_empty_ids)
 
     @property
     def has_shaft(self) -> bool:

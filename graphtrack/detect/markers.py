@@ -1,0 +1,121 @@
+"""Painted-marker detection by colour (undistorted image -> undistorted px).
+
+A pixel is a marker pixel when its OpenCV HSV value (H in [0, 180), S, V in
+[0, 255]) satisfies hue_low <= H <= hue_high, S >= sat_min and V >= val_min
+(default: blue paint, H in [90, 120], S, V >= 40). Marker pixels form blobs by
+8-connected components; blobs with area < min_area px or > max_area_frac of
+the image are dropped (the latter keeps a blue-tinted or saturated frame from
+becoming one giant "marker"). Each blob's centre is the weighted centroid
+
+    c = sum_p w(p) p / sum_p w(p),   w(p) = S(p) / 255,
+
+over its pixels p = (x, y) (pixel centres). On a blob's anti-aliased rim, S
+falls with the paint's coverage of the pixel, so c is sub-pixel. Candidates
+are searched on a downscaled copy and measured at full resolution (see
+:func:`detect_markers`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass
+class MarkerConfig:
+    """HSV window (OpenCV units) and blob size limits."""
+
+    hue_low: int = 90
+    hue_high: int = 120
+    sat_min: int = 40
+    val_min: int = 40
+    min_area: int = 8             #: px
+    max_area_frac: float = 0.05   #: of the image area
+    max_markers: int = 32         #: keep the largest blobs
+    max_side: int = 480           #: candidate search on a copy this size (0: full res)
+    margin: int = 4               #: px around a candidate box measured at full res
+
+
+def _bgr(image: np.ndarray) -> np.ndarray | None:
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] < 3 or img.dtype != np.uint8 or min(img.shape[:2]) < 1:
+        return None
+    return img[:, :, :3]
+
+
+def _mask(img: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
+    hsv = cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2HSV)
+    mask = cv2.inRange(hsv, (int(cfg.hue_low), int(cfg.sat_min), int(cfg.val_min)),
+                       (int(cfg.hue_high), 255, 255))
+    return mask, hsv
+
+
+def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0: int = 0):
+    """Weighted centroids (n, 2) and areas (n,) of the blobs of an image (offset x0, y0)."""
+    mask, hsv = _mask(img, cfg)
+    nz = cv2.findNonZero(mask)
+    if nz is None:
+        return np.zeros((0, 2)), np.zeros(0)
+    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
+    nz = nz.reshape(-1, 2)
+    xs, ys = nz[:, 0], nz[:, 1]
+    lab = labels[ys, xs]
+    w = hsv[ys, xs, 1].astype(float) / 255.0
+    area = np.bincount(lab, minlength=n).astype(float)
+    sw = np.bincount(lab, weights=w, minlength=n)
+    sx = np.bincount(lab, weights=w * xs, minlength=n)
+    sy = np.bincount(lab, weights=w * ys, minlength=n)
+    good = (area >= cfg.min_area) & (area <= max_area) & (sw > 0)
+    good[0] = False  # background
+    ids = np.flatnonzero(good)
+    return np.stack([sx[ids] / sw[ids] + x0, sy[ids] / sw[ids] + y0], 1), area[ids]
+
+
+def detect_markers(image: np.ndarray, config: MarkerConfig | None = None) -> np.ndarray:
+    """Marker centroids (M, 2) float (x, y) in the image's (undistorted) pixels,
+    largest blob first. Non-colour or non-uint8 images give (0, 2).
+
+    For speed, candidate blobs are found on a copy downscaled to ``max_side``
+    (INTER_AREA); each is then measured at full resolution in its bounding box
+    (grown by ``margin`` px), so the centroids are full-resolution ones.
+    """
+    cfg = config or MarkerConfig()
+    img = _bgr(image)
+    if img is None:
+        return np.zeros((0, 2))
+    H, W = img.shape[:2]
+    max_area = cfg.max_area_frac * H * W
+    s = min(1.0, cfg.max_side / max(H, W)) if cfg.max_side else 1.0
+    w, h = int(round(W * s)), int(round(H * s))
+    if s >= 1.0 or min(w, h) < 8:
+        c, a = _blobs(img, cfg, max_area)
+    else:
+        small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        mask, _ = _mask(small, cfg)
+        if cv2.countNonZero(mask) == 0:
+            return np.zeros((0, 2))
+        n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
+        cs, as_ = [], []
+        sx, sy = W / w, H / h
+        big = stats[1:, cv2.CC_STAT_AREA] * sx * sy <= max_area * 1.5
+        for bx, by, bw, bh, _ in stats[1:][big]:
+            x0 = max(0, int(np.floor(bx * sx)) - cfg.margin)
+            y0 = max(0, int(np.floor(by * sy)) - cfg.margin)
+            x1 = min(W, int(np.ceil((bx + bw) * sx)) + cfg.margin)
+            y1 = min(H, int(np.ceil((by + bh) * sy)) + cfg.margin)
+            c, a = _blobs(img[y0:y1, x0:x1], cfg, max_area, x0, y0)
+            # keep blobs centred in this box's core (a neighbour's box may overlap)
+            core = ((c[:, 0] >= bx * sx - 1.0) & (c[:, 0] <= (bx + bw) * sx)
+                    & (c[:, 1] >= by * sy - 1.0) & (c[:, 1] <= (by + bh) * sy))
+            cs.append(c[core])
+            as_.append(a[core])
+        if not cs:
+            return np.zeros((0, 2))
+        c, a = np.concatenate(cs), np.concatenate(as_)
+        if len(c) > 1:  # overlapping boxes may report one blob twice
+            d = np.hypot(c[:, None, 0] - c[None, :, 0], c[:, None, 1] - c[None, :, 1])
+            dup = np.triu(d < 1.0, 1).any(0)
+            c, a = c[~dup], a[~dup]
+    order = np.argsort(-a, kind="stable")[: cfg.max_markers]
+    return c[order]

@@ -1,0 +1,105 @@
+"""Build the estimator's Observation from a Detection, for each observation model.
+
+Notation (:mod:`graphtrack.detect.base`): detected shaft edge i has endpoints
+e^a_i, e^b_i (its segment) and line l_i = (rho_i, theta_i); H is the heatmap;
+alpha (px) and beta the set radius and heatmap threshold; E_e, E_l the
+endpoint and line sets of :mod:`graphtrack.detect.pixel_sets`.
+
+====================================  ========================================
+model                                 per detected edge i
+====================================  ========================================
+``canny``                             l_i = the detector's shaft line
+``endpoints-polar``                   the line through e^a_i and e^b_i (the
+                                      alpha = 0 limit of the sets)
+``endpoint-intensities-polar``        best sequential-RANSAC line of
+                                      E_e(e^a_i) U E_e(e^b_i)
+``line-intensities-polar``            best sequential-RANSAC line of
+                                      E_l(e^a_i, e^b_i)
+``endpoint-intensities``              the pixels E_e(e^a_i) U E_e(e^b_i)
+``line-intensities``                  the pixels E_l(e^a_i, e^b_i)
+====================================  ========================================
+
+Polar models fill ``Observation.lines`` (k, 2), pixel models
+``Observation.pixels`` (k arrays (m_i, 2)); ``edge_ids`` keeps, for each, the
+predicted edge it belongs to (edge order is preserved). An edge whose set is
+empty, or whose set holds too few pixels for a RANSAC line, is left out (with
+its id), so k may shrink. A Detection without a heatmap (H = None) is treated
+as H = 1 everywhere: the sets are then the full discs / capsules of radius
+alpha around the endpoints / segment (clipped to x, y >= 0). Markers are the
+detection's marker centroids when ``use_markers`` (else empty).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from graphtrack.detect.base import OBSERVATION_MODELS, Detection, Observation
+from graphtrack.detect.pixel_sets import ALPHA, BETA, endpoints_set, line_set
+from graphtrack.detect.ransac import RansacConfig, best_line
+from graphtrack.geometry.lines import line_through
+
+
+def _ids(detection: Detection, k: int) -> np.ndarray:
+    ids = np.asarray(getattr(detection, "edge_ids", np.zeros(0)), dtype=int).ravel()
+    if len(ids) != k:  # a detector that did not label its edges: keep their order
+        ids = np.arange(k, dtype=int)
+    return ids
+
+
+def _rng(rng) -> np.random.Generator:
+    if isinstance(rng, np.random.Generator):
+        return rng
+    return np.random.default_rng(0 if rng is None else rng)
+
+
+def make_observation(detection: Detection, model: str, alpha: float = ALPHA, beta: float = BETA,
+                     use_markers: bool = True, rng=None,
+                     ransac: RansacConfig | None = None) -> Observation:
+    """The Observation of ``detection`` under ``model`` (one of OBSERVATION_MODELS).
+
+    rng: numpy Generator or seed for RANSAC (None: seed 0, reproducible).
+    """
+    if model not in OBSERVATION_MODELS:
+        raise ValueError(f"unknown observation model '{model}' (choose from {', '.join(OBSERVATION_MODELS)})")
+    markers = np.asarray(detection.markers, float).reshape(-1, 2) if use_markers else np.zeros((0, 2))
+    obs = Observation(model=model, markers=markers.copy())
+    H = detection.heatmap
+
+    if model == "canny":
+        lines = np.asarray(detection.shaft_lines, float).reshape(-1, 2)
+        ids = _ids(detection, len(lines))
+        ok = np.all(np.isfinite(lines), axis=1)
+        obs.lines, obs.edge_ids = lines[ok].copy(), ids[ok]
+        return obs
+
+    segs = np.asarray(detection.shaft_segments, float).reshape(-1, 4)
+    ids = _ids(detection, len(segs))
+    ok = np.all(np.isfinite(segs), axis=1)
+    segs, ids = segs[ok], ids[ok]
+
+    if model == "endpoints-polar":
+        if len(segs):
+            rho, theta = line_through(segs[:, :2], segs[:, 2:])
+            good = np.hypot(segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]) > 0
+            obs.lines = np.stack([rho, theta], 1)[good]
+            obs.edge_ids = ids[good]
+        return obs
+
+    endpoint = model.startswith("endpoint-")
+    sets = [(endpoints_set if endpoint else line_set)(H, seg, alpha, beta) for seg in segs]
+
+    if model.endswith("-polar"):
+        gen = _rng(rng)
+        lines, kept = [], []
+        for eid, pts in zip(ids, sets):
+            line, _ = best_line(pts, ransac, gen)
+            if line is not None:
+                lines.append(line)
+                kept.append(eid)
+        obs.lines = np.array(lines, float).reshape(-1, 2)
+        obs.edge_ids = np.array(kept, dtype=int)
+        return obs
+
+    keep = [i for i, p in enumerate(sets) if len(p) > 0]
+    obs.pixels = [sets[i] for i in keep]
+    obs.edge_ids = ids[keep] if keep else np.zeros(0, dtype=int)
+    return obs

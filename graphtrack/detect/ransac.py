@@ -1,0 +1,150 @@
+"""Total-least-squares line fits and the method's sequential RANSAC.
+
+Lines are (rho, theta) of :mod:`graphtrack.geometry.lines`
+(cos(theta) x + sin(theta) y = rho, theta in [0, pi), undistorted px).
+
+Total least squares (TLS) of points p_j = (x_j, y_j), weights w_j: with the
+weighted mean m and scatter C = sum_j w_j (p_j - m)(p_j - m)^T / sum_j w_j,
+the line direction is C's principal eigenvector, at angle
+
+    phi = 1/2 atan2(2 C_xy, C_xx - C_yy),
+
+so the normal angle is theta = phi + pi/2 and rho = cos(theta) m_x + sin(theta) m_y.
+This minimises sum_j w_j R(p_j | theta, rho)^2, R the pixel residual (px).
+
+Sequential RANSAC (the method's defaults): repeat ``iterations`` = 5 times on
+the points not yet explained: draw ``trials`` = 100 random minimal sets of
+``samples`` = 3 pixels, fit each by TLS, count inliers |R| <= ``threshold`` =
+0.75 px, keep the trial with most inliers, refit it by TLS on its inliers,
+record (rho, theta) and the inlier count, and remove those inliers. All trials
+of an iteration are evaluated at once (a (trials, points) residual matrix).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from graphtrack.geometry.lines import canonical
+
+
+def tls_from_moments(n, sx, sy, sxx, sxy, syy) -> tuple[np.ndarray, np.ndarray]:
+    """TLS line(s) from (weighted) raw moments, broadcasting over any shape.
+
+    n = sum w, sx = sum w x, sxx = sum w x^2, ... Returns canonical (rho, theta).
+    For numerical accuracy pass moments of coordinates centred near the points
+    (then shift rho back, see :func:`fit_line_tls`). n must be > 0.
+    """
+    n = np.asarray(n, float)
+    mx, my = sx / n, sy / n
+    cxx = sxx / n - mx * mx
+    cxy = sxy / n - mx * my
+    cyy = syy / n - my * my
+    phi = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)
+    theta = phi + 0.5 * np.pi
+    rho = np.cos(theta) * mx + np.sin(theta) * my
+    return canonical(rho, theta)
+
+
+def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """TLS line (rho, theta) through points (P, 2), P >= 2; optional weights (P,)."""
+    p = np.asarray(points, float)
+    w = np.ones(len(p)) if weights is None else np.asarray(weights, float)
+    c = p.mean(0)
+    q = p - c
+    x, y = q[:, 0], q[:, 1]
+    rho, theta = tls_from_moments(w.sum(), w @ x, w @ y, w @ (x * x), w @ (x * y), w @ (y * y))
+    rho = rho + np.cos(theta) * c[0] + np.sin(theta) * c[1]
+    return np.array([float(rho), float(theta)])
+
+
+@dataclass
+class RansacConfig:
+    """The method's sequential-RANSAC hyper-parameters (px, counts)."""
+
+    iterations: int = 5      #: lines extracted one after another
+    samples: int = 3         #: pixels per hypothesis (TLS fit of the sample)
+    threshold: float = 0.75  #: inlier residual |R| (px)
+    trials: int = 100        #: hypotheses per iteration
+    min_inliers: int = 3     #: stop when the best hypothesis explains fewer
+
+
+def _rng(rng) -> np.random.Generator:
+    if isinstance(rng, np.random.Generator):
+        return rng
+    return np.random.default_rng(0 if rng is None else rng)
+
+
+def _residuals(points: np.ndarray, rho: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """|R| for T lines x P points -> (T, P)."""
+    return np.abs(np.cos(theta)[:, None] * points[None, :, 0]
+                  + np.sin(theta)[:, None] * points[None, :, 1] - rho[:, None])
+
+
+def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
+                      rng=None) -> tuple[np.ndarray, np.ndarray]:
+    """Sequential RANSAC lines in a pixel set.
+
+    points: (P, 2) pixel coordinates (x, y); rng: a numpy Generator or a seed
+    (None: seed 0, so results are reproducible by default).
+    Returns lines (L, 2) canonical (rho, theta) and inlier counts (L,) int,
+    L <= config.iterations, in extraction order.
+    """
+    cfg = config or RansacConfig()
+    gen = _rng(rng)
+    pts = np.asarray(points, float).reshape(-1, 2)
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    lines, counts = [], []
+    if len(pts) == 0:
+        return np.zeros((0, 2)), np.zeros(0, dtype=int)
+    centre = pts.mean(0)
+    remaining = pts - centre  # centred for conditioning; rho shifted back at the end
+    k = max(2, int(cfg.samples))
+    for _ in range(int(cfg.iterations)):
+        P = len(remaining)
+        if P < max(k, cfg.min_inliers):
+            break
+        idx = gen.integers(0, P, size=(int(cfg.trials), k))
+        s = remaining[idx]                                   # (T, k, 2)
+        c = s.mean(1, keepdims=True)
+        q = s - c
+        x, y = q[..., 0], q[..., 1]
+        rho, theta = tls_from_moments(float(k), x.sum(1), y.sum(1), (x * x).sum(1),
+                                      (x * y).sum(1), (y * y).sum(1))
+        rho = rho + np.cos(theta) * c[:, 0, 0] + np.sin(theta) * c[:, 0, 1]
+        # a sample with all pixels identical defines no line
+        spread = (x * x + y * y).sum(1)
+        inl = _residuals(remaining, rho, theta) <= cfg.threshold   # (T, P)
+        score = np.where(spread > 1e-12, inl.sum(1), -1)
+        best = int(np.argmax(score))
+        if score[best] < cfg.min_inliers:
+            break
+        mask = inl[best]
+        line = fit_line_tls(remaining[mask])
+        # the refit may move the line: recount inliers against it, keep it if
+        # it explains at least as many pixels (else keep the hypothesis)
+        mask2 = _residuals(remaining, line[:1], line[1:])[0] <= cfg.threshold
+        if mask2.sum() >= mask.sum():
+            mask = mask2
+        else:
+            line = np.array([rho[best], theta[best]])
+        lines.append(line)
+        counts.append(int(mask.sum()))
+        remaining = remaining[~mask]
+    if not lines:
+        return np.zeros((0, 2)), np.zeros(0, dtype=int)
+    L = np.array(lines)
+    rho = L[:, 0] + np.cos(L[:, 1]) * centre[0] + np.sin(L[:, 1]) * centre[1]
+    rho, theta = canonical(rho, L[:, 1])
+    return np.stack([rho, theta], 1), np.array(counts, dtype=int)
+
+
+def best_line(points: np.ndarray, config: RansacConfig | None = None,
+              rng=None) -> tuple[np.ndarray | None, int]:
+    """The sequential-RANSAC line with the most inliers: ((rho, theta), count),
+    or (None, 0) when the set holds too few pixels for any line."""
+    lines, counts = sequential_ransac(points, config, rng)
+    if len(lines) == 0:
+        return None, 0
+    i = int(np.argmax(counts))
+    return lines[i], int(counts[i])
