@@ -303,7 +303,8 @@ class ToolRenderer:
     def render(self, prims: list[Primitive], background: np.ndarray, probes=()):
         """Draw prims over ``background`` (H, W, 3 uint8, modified in place and returned).
 
-        probes: raw pixels (u, v) whose hit depth (m, inf for none) is returned.
+        probes: raw pixels (u, v) whose hit depth (m, inf for none) and hit id
+        (primitive index + 1, MARKER_ID, 0 for none) are returned: (depths, ids).
         Each primitive is intersected on its own candidate pixels only; a
         z-buffer over the padded image keeps the nearest hit.
         """
@@ -325,7 +326,7 @@ class ToolRenderer:
             self.mark[new] = self.stamp
             union.append(new)
         if not union:
-            return background, np.full(len(probes), np.inf)
+            return background, (np.full(len(probes), np.inf), np.zeros(len(probes), int))
         allc = np.concatenate(union)
         xs, ys = X[allc], Y[allc]
         which = self.wid[allc].astype(np.int16) - 1
@@ -359,11 +360,12 @@ class ToolRenderer:
                 colours = np.concatenate([col[keep], ecol])
         v, u = np.divmod(out_idx, Wp)
         background[v - 1, u - 1] = np.clip(colours + 0.5, 0, 255).astype(np.uint8)
-        depth = []
+        depth, pid = [], []
         for (pu, pv) in probes:
             iu, iv = int(round(pu)), int(round(pv))
             ok = 0 <= iu < self.rays.W and 0 <= iv < self.rays.H
             depth.append(self.zbuf[(iv + 1) * Wp + iu + 1] if ok else np.inf)
+            pid.append(int(self.wid[(iv + 1) * Wp + iu + 1]) if ok else 0)
         self.zbuf[hidx] = np.inf
         self.wid[hidx] = 0
-        return background, np.array(depth)
+        return background, (np.array(depth), np.array(pid, int))

@@ -114,10 +114,13 @@ class Scene:
         return None
 
     def compose(self, prims, i: int, rng, tip_uv=None):
-        """Frame i: background, tool, flap, noise, blur -> (uint8 BGR image, tip depth, tip under flap)."""
+        """Frame i: background, tool, flap, noise, blur.
+
+        Returns (uint8 BGR image, (depth m, primitive) of the tool at tip_uv, tip under a flap).
+        """
         img = self.background.copy()
         probes = [] if tip_uv is None else [tip_uv]
-        img, depth = self.renderer.render(prims, img, probes)
+        img, (depth, pid) = self.renderer.render(prims, img, probes)
         covered = False
         fm = self.flap_mask(i)
         if fm is not None:
@@ -136,7 +139,8 @@ class Scene:
             dv, du = rng.integers(0, pos.shape[0] - H + 1), rng.integers(0, pos.shape[1] - W + 1)
             cv2.add(img, pos[dv:dv + H, du:du + W], dst=img)
             cv2.subtract(img, neg[dv:dv + H, du:du + W], dst=img)
-        return img, (depth[0] if len(depth) else np.inf), covered
+        hit = (depth[0], prims[pid[0] - 1] if 0 < pid[0] <= len(prims) else None) if len(depth) else (np.inf, None)
+        return img, hit, covered
 
 
 def _materials(shaft_bgr=(38.0, 38.0, 42.0)) -> dict:

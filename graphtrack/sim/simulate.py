@@ -16,7 +16,9 @@ and the TRUE tip: robot.tool_tip through E_he . base_T_link7(q_t), projected
 with distortion into the RAW image (tip_u, tip_v; NaN when behind the camera).
 handeye.yaml holds the NOMINAL Delta . E_he (Delta: 2-5 mm, 1-3 deg).
 labels.csv: the true tip + N(0, 1.2 px) labelling noise, omitted when the
-tip is outside the image, behind a tissue flap or hidden by the tool itself.
+tip is outside the image, behind a tissue flap, or hidden by the shaft or
+wrist (> 3 mm in front of it on its pixel). The other jaw crossing in front
+does not count: the jaws are thin and a labeller marks the tip through them.
 Stamps: t0 + i / 30 s.
 """
 from __future__ import annotations
@@ -109,10 +111,11 @@ class Simulation:
         prims = tool_primitives(self.L_true[i])
         uv = self.tip_uv[i]
         probe = uv if np.all(np.isfinite(uv)) else None
-        img, depth, covered = self.scene.compose(prims, i, self.rng_frame, probe)
+        img, (depth, prim), covered = self.scene.compose(prims, i, self.rng_frame, probe)
         H, W = img.shape[:2]
         inside = probe is not None and 0 <= uv[0] <= W - 1 and 0 <= uv[1] <= H - 1
-        visible = inside and not covered and depth >= self.tip_cam[i, 2] - 0.003
+        behind = depth < self.tip_cam[i, 2] - 0.003 and (prim is None or prim.material != "jaw")
+        visible = inside and not covered and not behind
         return img, bool(visible)
 
     def frames(self, truth_file=None, labels: dict | None = None):
