@@ -1,0 +1,271 @@
+"""Observation log-likelihoods log P(z_t | E) for all particles at once.
+
+Every function returns an (N,) array of log-likelihoods, up to an additive
+constant shared by all particles (the filter subtracts the maximum before
+exponentiating). Inputs per particle n are the projected shaft limb lines
+(rho_{n,j}, theta_{n,j}), j = 1, 2 (px, rad; :func:`graphtrack.robot.features.shaft_lines`),
+their ``valid`` flag, and the projected markers (px). Detected quantities come
+from :class:`graphtrack.detect.base.Observation` in undistorted pixels.
+
+Polar models (``canny``, ``endpoints-polar``, ``endpoint-intensities-polar``,
+``line-intensities-polar``)::
+
+    log P = max_pi log sum_i exp(-gamma_rho |rho_i^det - rho_pi(i)(E)| - gamma_theta |theta_i^det - theta_pi(i)(E)|)
+
+with pi an injective pairing of detected lines i to projected edges
+(both pairings of two lines are tried per particle and the better one kept,
+or the one given by ``edge_ids`` if asked to), and the differences taken by
+:func:`graphtrack.geometry.lines.line_difference` (theta wrapped to
+[-pi/2, pi/2), rho compared in the matching representation).
+gamma_rho in 1/px, gamma_theta in 1/rad.
+
+Pixel models (``endpoint-intensities``, ``line-intensities``): each pixel
+p = (x, y) of the sets E_e / E_l has the residual
+R(p | theta, rho) = cos(theta) x + sin(theta) y - rho (px) against the NEARER
+of the two projected edges, R ~ N(0, sigma^2), and
+
+    log P = lambda * sum_p max(-R_p^2 / (2 sigma^2), -c^2 / 2)
+
+The floor at c sigma is the max-mixture form of a Gaussian + uniform outlier
+mixture (a stray pixel costs at most c^2/2 nats, so it cannot annihilate a
+particle). lambda (``pixel_weight``) tempers the sum for the correlation of
+neighbouring pixels (lambda = 1: the plain sum of independent pixels).
+
+Markers: log P = -gamma sum_k min(d_k, gate), d_k (px) the distance of
+detected marker k to the projected marker it is associated with; association
+is the best injective assignment PER PARTICLE (all assignments enumerated,
+vectorised; exact for the few markers of a tool), projected markers facing
+away from the camera count as unmatched (cost gate).
+
+Degenerate projections (valid False) get ``INVALID_LOGLIK``, a very low but
+finite value.
+"""
+from __future__ import annotations
+
+import itertools
+from functools import lru_cache
+
+import numpy as np
+
+from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS
+from graphtrack.geometry.lines import line_difference
+
+#: log-likelihood of a particle whose shaft projection is degenerate (finite).
+INVALID_LOGLIK = -1.0e6
+
+#: Defaults (units in the names): polar Laplace rates, pixel sigma, marker model.
+GAMMA_RHO = 0.5        # 1/px: 2 px of rho error costs 1 nat
+GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
+PIXEL_SIGMA = 2.0      # px
+PIXEL_OUTLIER_SIGMAS = 3.0
+PIXEL_WEIGHT = 1.0
+MARKER_GAMMA = 0.15    # 1/px, per marker
+MARKER_GATE = 20.0     # px
+
+
+def _finite_rows(a: np.ndarray, width: int) -> np.ndarray:
+    a = np.asarray(a, dtype=float).reshape(-1, width)
+    return a[np.all(np.isfinite(a), axis=1)]
+
+
+def polar_loglik(rho: np.ndarray, theta: np.ndarray, lines: np.ndarray,
+                 gamma_rho: float = GAMMA_RHO, gamma_theta: float = GAMMA_THETA,
+                 edge_ids: np.ndarray | None = None) -> np.ndarray:
+    """Polar model over particles: rho, theta (N, 2) projected; lines (k, 2) detected.
+
+    Returns (N,); zeros when no line is detected.
+    """
+    lines = np.asarray(lines, dtype=float).reshape(-1, 2)
+    keep = np.all(np.isfinite(lines), axis=1)
+    ids = None if edge_ids is None or len(edge_ids) != len(lines) else np.asarray(edge_ids)[keep]
+    lines = lines[keep]
+    n = rho.shape[0]
+    k = len(lines)
+    if k == 0:
+        return np.zeros(n)
+    # cost[n, i, j]: detected line i against projected edge j
+    drho, dth = line_difference(lines[None, :, None, 0], lines[None, :, None, 1],
+                                rho[:, None, :], theta[:, None, :])
+    cost = gamma_rho * np.abs(drho) + gamma_theta * np.abs(dth)
+    if ids is not None and np.all((ids >= 0) & (ids < rho.shape[1])):
+        pairings = [tuple(int(j) for j in ids)]
+    elif k <= rho.shape[1]:
+        pairings = list(itertools.permutations(range(rho.shape[1]), k))
+    else:  # more detections than edges: each takes its best edge
+        return _logsumexp(-cost.min(axis=2), axis=1)
+    best = None
+    rows = np.arange(k)
+    for p in pairings:
+        ll = _logsumexp(-cost[:, rows, list(p)], axis=1)
+        best = ll if best is None else np.maximum(best, ll)
+    return best
+
+
+def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
+    m = np.max(a, axis=axis, keepdims=True)
+    m = np.where(np.isfinite(m), m, 0.0)
+    return (m + np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True))).squeeze(axis)
+
+
+def pixel_loglik(rho: np.ndarray, theta: np.ndarray, pixels: np.ndarray,
+                 sigma: float = PIXEL_SIGMA, outlier_sigmas: float = PIXEL_OUTLIER_SIGMAS,
+                 weight: float = PIXEL_WEIGHT, _buffers: dict | None = None) -> np.ndarray:
+    """Pixel model over particles: rho, theta (N, L) projected edges, pixels (P, 2).
+
+    Residuals are formed as one (N*L, 3) x (3, P) float32 product (torch when
+    available, else numpy)
+    [cos theta, sin theta, -rho] . [x, y, 1]^T (float32 is exact to ~1e-4 px
+    here), squared, reduced over the edges by min (nearer edge), floored at
+    (c sigma)^2 and summed over pixels. Returns (N,); zeros without pixels.
+    """
+    pixels = _finite_rows(pixels, 2)
+    n, L = rho.shape
+    P = len(pixels)
+    if P == 0:
+        return np.zeros(n)
+    # centre the pixels: keeps float32 accurate for large coordinates
+    c0 = pixels.mean(axis=0)
+    rho_c = rho - (np.cos(theta) * c0[0] + np.sin(theta) * c0[1])
+    A = np.empty((n, L, 3), dtype=np.float32)
+    A[..., 0] = np.cos(theta)
+    A[..., 1] = np.sin(theta)
+    A[..., 2] = -rho_c
+    B = np.empty((3, P), dtype=np.float32)
+    B[:2] = (pixels - c0).T
+    B[2] = 1.0
+    floor = (outlier_sigmas * sigma) ** 2
+    buf = _buffers if _buffers is not None else {}
+    torch = _torch()
+    if torch is not None:
+        At = torch.from_numpy(A.reshape(n * L, 3))
+        Bt = torch.from_numpy(B)
+        R = buf.get("Rt")
+        if R is None or tuple(R.shape) != (n * L, P):
+            R = buf["Rt"] = torch.empty((n * L, P), dtype=torch.float32)
+        torch.matmul(At, Bt, out=R)
+        R.square_()
+        R3 = R.view(n, L, P)
+        T = R3[:, 0].clone() if L == 1 else torch.minimum(R3[:, 0], R3[:, 1])
+        for j in range(2, L):
+            torch.minimum(T, R3[:, j], out=T)
+        T.clamp_(max=floor)
+        ssq = T.sum(dim=1).numpy().astype(np.float64)
+    else:
+        R = buf.get("R")
+        if R is None or R.shape != (n * L, P):
+            R = buf["R"] = np.empty((n * L, P), dtype=np.float32)
+            buf["T"] = np.empty((n, P), dtype=np.float32)
+        T = buf["T"]
+        np.matmul(A.reshape(n * L, 3), B, out=R)
+        np.square(R, out=R)
+        R3 = R.reshape(n, L, P)
+        if L == 1:
+            np.copyto(T, R3[:, 0])
+        else:
+            np.minimum(R3[:, 0], R3[:, 1], out=T)
+            for j in range(2, L):
+                np.minimum(T, R3[:, j], out=T)
+        np.minimum(T, np.float32(floor), out=T)
+        ssq = T.sum(axis=1, dtype=np.float64)
+    return -weight * ssq / (2.0 * sigma * sigma)
+
+
+_TORCH = []
+
+
+def _torch():
+    """torch if importable (its single-thread float32 GEMM + in-place ops are ~2x
+    numpy's for the (2N, 3) x (3, P) residual product), else None."""
+    if not _TORCH:
+        try:
+            import torch
+        except Exception:  # pragma: no cover - torch is optional
+            torch = None
+        _TORCH.append(torch)
+    return _TORCH[0] if USE_TORCH else None
+
+
+#: set False to force the numpy path (tests compare both)
+USE_TORCH = True
+
+
+@lru_cache(maxsize=64)
+def _assignments(n_model: int, n_det: int) -> np.ndarray:
+    """All injective maps detected -> model, as (A, n_det) model indices, -1 = unmatched
+    (only when n_det > n_model)."""
+    if n_det <= n_model:
+        return np.array(list(itertools.permutations(range(n_model), n_det)), dtype=int).reshape(-1, n_det)
+    rows = []
+    for chosen in itertools.permutations(range(n_det), n_model):
+        r = -np.ones(n_det, dtype=int)
+        r[list(chosen)] = np.arange(n_model)
+        rows.append(r)
+    return np.unique(np.array(rows, dtype=int), axis=0)
+
+
+MAX_ENUMERATED = 720
+
+
+def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarray,
+                  gamma: float = MARKER_GAMMA, gate: float = MARKER_GATE,
+                  estimate_index: int | None = None) -> np.ndarray:
+    """Marker model: projected (N, M, 2) px, visible (N, M) bool, detected (D, 2) px.
+
+    Per particle, min over assignments of sum_k min(d_k, gate), times -gamma.
+    When the assignments are too many to enumerate (> MAX_ENUMERATED) the
+    Hungarian assignment at particle ``estimate_index`` (default 0) is used
+    for all particles.
+    """
+    detected = _finite_rows(detected, 2)
+    n, M = projected.shape[:2]
+    D = len(detected)
+    if D == 0 or M == 0:
+        return np.zeros(n)
+    diff = projected[:, :, None, :] - detected[None, None, :, :]
+    d = np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2)  # (N, M, D)
+    d = np.where(np.isfinite(d) & visible[:, :, None], np.minimum(d, gate), gate)
+    count = 1
+    for i in range(min(M, D)):
+        count *= max(M, D) - i
+    if count <= MAX_ENUMERATED:
+        assign = _assignments(M, D)  # (A, D)
+        cols = np.arange(D)
+        dd = np.concatenate([d, np.full((n, 1, D), gate)], axis=1)  # row M = unmatched
+        cost = dd[:, np.where(assign < 0, M, assign), cols].sum(axis=2)  # (N, A)
+        total = cost.min(axis=1)
+    else:
+        from scipy.optimize import linear_sum_assignment
+
+        i0 = 0 if estimate_index is None else estimate_index
+        r, c = linear_sum_assignment(d[i0])
+        total = d[:, r, c].sum(axis=1) + gate * (D - len(c))
+    return -gamma * total
+
+
+def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndarray,
+                 gamma_rho: float = GAMMA_RHO, gamma_theta: float = GAMMA_THETA,
+                 use_edge_ids: bool = False, pixel_sigma: float = PIXEL_SIGMA,
+                 pixel_outlier_sigmas: float = PIXEL_OUTLIER_SIGMAS,
+                 pixel_weight: float = PIXEL_WEIGHT, _buffers: dict | None = None) -> np.ndarray:
+    """The shaft term for ``observation.model`` over particles (N,).
+
+    Zeros (weights unchanged) when the frame has no shaft detection;
+    INVALID_LOGLIK for particles with ``valid`` False.
+    """
+    model = observation.model
+    if model not in OBSERVATION_MODELS:
+        raise ValueError(f"unknown observation model {model!r}")
+    n = rho.shape[0]
+    if model in POLAR_MODELS:
+        if len(observation.lines) == 0:
+            return np.zeros(n)
+        ids = observation.edge_ids if use_edge_ids and len(observation.edge_ids) else None
+        ll = polar_loglik(rho, theta, observation.lines, gamma_rho, gamma_theta, ids)
+    else:
+        sets = [np.asarray(p, float).reshape(-1, 2) for p in observation.pixels if len(p)]
+        if not sets:
+            return np.zeros(n)
+        ll = pixel_loglik(rho, theta, np.concatenate(sets), pixel_sigma, pixel_outlier_sigmas,
+                          pixel_weight, _buffers)
+    ll = np.where(valid & np.isfinite(ll), ll, INVALID_LOGLIK)
+    return ll

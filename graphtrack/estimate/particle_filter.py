@@ -1,0 +1,270 @@
+"""The method's particle filter over the lumped error E_t (camera-from-base).
+
+State. Each particle is x = (b, w) in R^6, b in metres, w an axis-angle
+rotation in radians, and stands for
+
+    E(x) = E(b, w) . E_0,          E(b, w) = [R(w) b; 0 1]   (se3.bw_to_matrix)
+
+i.e. a correction applied on the LEFT, in the camera frame, to the hand-eye
+prior E_0 = ctx.handeye. x = 0 is the prior itself. A feature X on link j
+is seen at camera_X = E(x) . T_1(q~_1) ... T_j(q~_j) . X with the noisy joint
+readings q~; joint errors are absorbed ("lumped") into E_t.
+
+Motion model: x_t = x_{t-1} + v_t, v_t ~ N(0, diag(s_b^2 I_3, s_w^2 I_3)),
+s_b = ``motion_std_b`` (m/frame), s_w = ``motion_std_w`` (rad/frame).
+Prior: x_0 ~ N(0, diag(i_b^2 I_3, i_w^2 I_3)) (``init_std_b``, ``init_std_w``).
+
+Update: log w_n += log P(z_t | E(x_n)) (shaft model of Observation.model
++ markers, :mod:`graphtrack.estimate.observation_models`), in log space with
+max-subtraction. A frame without shaft or markers leaves the weights alone.
+When ESS = 1 / sum w_n^2 < ``resample_threshold`` * N: systematic
+resampling (:mod:`graphtrack.estimate.resampling`) followed by roughening,
+x_n += N(0, (``roughening``)^2 Sigma), Sigma the weighted particle covariance
+before resampling: it keeps the cloud diverse in the directions the data have
+not yet pinned down and shrinks with it as the filter converges.
+
+Estimate: b = sum w_n b_n; R = chordal L2 mean of R(w_n) (se3.average_rotations);
+E_t = [R b; 0 1] . E_0. ``Estimate.std``/``cov``: weighted covariance of x.
+
+Defaults. The dVRK tracker's values (motion 2.5e-5 m, 1e-4 rad per frame;
+initial spread 1e-3 m, 1e-2 rad) are kept for the motion model, but the
+initial spread is widened to 4e-3 m / 3e-2 rad (1.7 deg): hand-eye errors of
+several mm and 1-3 deg put the truth 3-6 sigma outside the narrow prior, where
+no particle lands and a 2.5e-5 m random walk needs hundreds of frames to get
+there (measured: see tests/test_pf_filter.py and the report in bench_pf.py's
+docstring). Roughening (0.2) replaces the diversity resampling removes, so the
+wide prior contracts to the truth within tens of frames instead of collapsing
+onto the first lucky particle.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from graphtrack.estimate import observation_models as om
+from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
+                                            systematic_resample)
+from graphtrack.geometry.cylinder import project_cylinder
+from graphtrack.geometry.se3 import average_rotations
+from graphtrack.robot.features import base_features
+
+STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+
+
+def rodrigues(w: np.ndarray) -> np.ndarray:
+    """R(w) = I + A [w]x + B [w]x^2 for w (N, 3), with [w]x^2 = w w^T - |w|^2 I,
+    A = sin t / t, B = (1 - cos t) / t^2 (Taylor below t = 1e-4). (N, 3, 3)."""
+    t2 = np.einsum("ni,ni->n", w, w)
+    t = np.sqrt(t2)
+    small = t < 1e-4
+    ts = np.where(small, 1.0, t)
+    A = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
+    B = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / (ts * ts))
+    R = (B[:, None, None] * w[:, :, None]) * w[:, None, :]
+    d = 1.0 - B * t2
+    R[:, 0, 0] += d
+    R[:, 1, 1] += d
+    R[:, 2, 2] += d
+    aw = A[:, None] * w
+    R[:, 0, 1] -= aw[:, 2]
+    R[:, 1, 0] += aw[:, 2]
+    R[:, 0, 2] += aw[:, 1]
+    R[:, 2, 0] -= aw[:, 1]
+    R[:, 1, 2] -= aw[:, 0]
+    R[:, 2, 1] += aw[:, 0]
+    return R
+
+
+class ParticleFilter:
+    """Particle filter over x = (b, w) with E(x) = bw_to_matrix(x) . E_0.
+
+    Options (units): particles N; seed; markers (use detected markers);
+    motion_std_b (m/frame), motion_std_w (rad/frame); init_std_b (m),
+    init_std_w (rad); resample_threshold (fraction of N for ESS);
+    roughening (fraction of the particle std added after resampling, 0: off);
+    gamma_rho (1/px), gamma_theta (1/rad): polar models; use_edge_ids: pair
+    detected and projected edges by Observation.edge_ids instead of the best
+    pairing per particle; pixel_sigma (px), pixel_outlier_sigmas,
+    pixel_weight: pixel models; marker_gamma (1/px), marker_gate (px).
+    ``observation`` is the model the caller intends to feed (informational:
+    each Observation carries its own ``model``, which is what is scored).
+    """
+
+    name = "pf"
+    uses_observations = True
+
+    def __init__(self, ctx: TrackingContext, observation: str = "line-intensities",
+                 particles: int = 1000, seed: int = 0, markers: bool = True, *,
+                 motion_std_b: float = 2.5e-5, motion_std_w: float = 1e-4,
+                 init_std_b: float = 4e-3, init_std_w: float = 3e-2,
+                 resample_threshold: float = 0.5, roughening: float = 0.5,
+                 gamma_rho: float = om.GAMMA_RHO, gamma_theta: float = om.GAMMA_THETA,
+                 use_edge_ids: bool = False, pixel_sigma: float = om.PIXEL_SIGMA,
+                 pixel_outlier_sigmas: float = om.PIXEL_OUTLIER_SIGMAS,
+                 pixel_weight: float = om.PIXEL_WEIGHT,
+                 marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE):
+        if observation not in om.OBSERVATION_MODELS:
+            raise ValueError(f"unknown observation model {observation!r}")
+        if int(particles) < 1:
+            raise ValueError("particles must be >= 1")
+        self.ctx = ctx
+        self.robot = ctx.robot
+        self.K = np.asarray(ctx.camera.K, dtype=float)
+        self.E0 = np.asarray(ctx.handeye, dtype=float).copy()
+        self.observation = observation
+        self.N = int(particles)
+        self.use_markers = bool(markers)
+        self.rng = np.random.default_rng(seed)
+        self.motion_std = np.array([motion_std_b] * 3 + [motion_std_w] * 3, dtype=float)
+        self.init_std = np.array([init_std_b] * 3 + [init_std_w] * 3, dtype=float)
+        self.resample_threshold = float(resample_threshold)
+        self.roughening = float(roughening)
+        self.shaft_options = dict(gamma_rho=gamma_rho, gamma_theta=gamma_theta,
+                                  use_edge_ids=use_edge_ids, pixel_sigma=pixel_sigma,
+                                  pixel_outlier_sigmas=pixel_outlier_sigmas,
+                                  pixel_weight=pixel_weight)
+        self.marker_gamma = float(marker_gamma)
+        self.marker_gate = float(marker_gate)
+        self._buffers: dict = {}
+        self.reset()
+
+    # -- state ------------------------------------------------------------------------
+    def reset(self, x0: np.ndarray | None = None) -> None:
+        """Draw the prior cloud x_n ~ N(x0, diag(init_std^2)), equal weights."""
+        centre = np.zeros(6) if x0 is None else np.asarray(x0, float)
+        self.x = centre + self.rng.standard_normal((self.N, 6)) * self.init_std
+        self.logw = np.full(self.N, -np.log(self.N))
+        self.t = 0
+        self.x_mean = centre.copy()
+        self.R_mean = rodrigues(centre[None, 3:])[0]
+
+    @property
+    def weights(self) -> np.ndarray:
+        return np.exp(self.logw)
+
+    @property
+    def E(self) -> np.ndarray:
+        """The current estimate of E_t (4x4)."""
+        C = np.eye(4)
+        C[:3, :3] = self.R_mean
+        C[:3, 3] = self.x_mean[:3]
+        return C @ self.E0
+
+    def predict(self) -> None:
+        """x_n += v_n, v_n ~ N(0, diag(motion_std^2))."""
+        self.x += self.rng.standard_normal((self.N, 6)) * self.motion_std
+
+    # -- projection of every hypothesis -----------------------------------------------
+    def _frame_geometry(self, q: np.ndarray):
+        """Shaft axis, markers and marker normals for reading q, mapped by E_0: (3, K)."""
+        f = base_features(self.robot, np.asarray(q, float))
+        R0, t0 = self.E0[:3, :3], self.E0[:3, 3]
+        p0, d = f.shaft_p0[0], f.shaft_d[0]
+        r = float(f.shaft_r[0])
+        pts = f.points.reshape(-1, 3)
+        rel = pts - p0
+        radial = rel - (rel @ d)[:, None] * d
+        dist = np.linalg.norm(radial, axis=1)
+        on_shaft = np.abs(dist - r) < 0.25 * r
+        normals = np.where(on_shaft[:, None], radial / np.maximum(dist, 1e-12)[:, None], 0.0)
+        V = np.concatenate([(R0 @ p0 + t0)[:, None], (R0 @ d)[:, None],
+                            (pts @ R0.T + t0).T, (normals @ R0.T).T], axis=1)
+        return V, r, on_shaft
+
+    def hypotheses(self, q: np.ndarray, x: np.ndarray | None = None) -> dict:
+        """Project the shaft and markers for every particle (or for states x (n, 6)).
+
+        Returns rho, theta (n, 2) px/rad, valid (n,), markers (n, M, 2) px,
+        visible (n, M) bool, R (n, 3, 3).
+        """
+        x = self.x if x is None else np.atleast_2d(np.asarray(x, float))
+        V, r, on_shaft = self._frame_geometry(q)
+        R = rodrigues(x[:, 3:])
+        W = R @ V  # (n, 3, K)
+        b = x[:, :3]
+        p0 = W[:, :, 0] + b
+        d = W[:, :, 1]
+        rho, theta, valid = project_cylinder(p0, d, r, self.K)
+        M = len(on_shaft)
+        pts = W[:, :, 2:2 + M] + b[:, :, None]  # (n, 3, M)
+        z = pts[:, 2]
+        safe = np.where(z > 1e-9, z, 1e-9)
+        u = self.K[0, 0] * pts[:, 0] / safe + self.K[0, 2]
+        v = self.K[1, 1] * pts[:, 1] / safe + self.K[1, 2]
+        normals = W[:, :, 2 + M:]
+        facing = np.einsum("nim,nim->nm", normals, pts) < 0.0
+        visible = (z > 1e-9) & (facing | ~on_shaft[None, :])
+        return dict(rho=rho, theta=theta, valid=valid, markers=np.stack([u, v], -1),
+                    visible=visible, R=R)
+
+    def predicted_lines(self, q: np.ndarray) -> np.ndarray:
+        """(2, 2) (rho, theta) of the shaft edges at the current estimate, for a detector's gate."""
+        from graphtrack.geometry.se3 import matrix_to_bw
+
+        xm = matrix_to_bw(self.E @ np.linalg.inv(self.E0))
+        h = self.hypotheses(q, xm[None])
+        return np.stack([h["rho"][0], h["theta"][0]], -1)
+
+    # -- the filter step --------------------------------------------------------------
+    def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None) -> np.ndarray:
+        """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x)."""
+        h = self.hypotheses(q, x)
+        return self._loglik(h, observation)
+
+    def _loglik(self, h: dict, observation) -> np.ndarray:
+        n = len(h["rho"])
+        ll = np.zeros(n)
+        if observation is None:
+            return ll
+        if observation.has_shaft:
+            ll += om.shaft_loglik(observation, h["rho"], h["theta"], h["valid"],
+                                  _buffers=self._buffers, **self.shaft_options)
+        if self.use_markers and len(observation.markers):
+            ll += om.marker_loglik(h["markers"], h["visible"], observation.markers,
+                                   self.marker_gamma, self.marker_gate,
+                                   estimate_index=int(np.argmax(self.logw)) if n == self.N else 0)
+        return ll
+
+    def step(self, frame: Frame, observation=None) -> Estimate:
+        q = frame.q
+        if self.t > 0:
+            self.predict()
+        self.t += 1
+        h = self.hypotheses(q)
+        informative = observation is not None and (
+            observation.has_shaft or (self.use_markers and len(observation.markers)))
+        if informative:
+            self.logw = normalize_log_weights(self.logw + self._loglik(h, observation))
+        w = np.exp(self.logw)
+        ess = effective_sample_size(w)
+        # estimate: weighted mean of b, chordal mean of R(w)
+        self.x_mean = w @ self.x
+        self.R_mean = average_rotations(h["R"], w)
+        dx = self.x - self.x_mean
+        cov = (dx * w[:, None]).T @ dx
+        est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,
+                       extra={**dict(zip(STD_COLUMNS, map(float, np.sqrt(np.diag(cov))))),
+                              "ess": ess})
+        if ess < self.resample_threshold * self.N:
+            self.resample(w, cov)
+        return est
+
+    def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
+        """Systematic resampling, then roughening with (roughening^2) Sigma."""
+        w = np.exp(self.logw) if w is None else w
+        idx = systematic_resample(w, self.rng)
+        self.x = self.x[idx]
+        self.logw = np.full(self.N, -np.log(self.N))
+        if self.roughening > 0 and cov is not None:
+            C = self.roughening ** 2 * cov
+            # cap the jitter at the prior spread per axis (directions the data never
+            # constrain would otherwise inflate by (1 + roughening^2) per resampling)
+            s = np.sqrt(np.maximum(np.diag(C), 1e-300))
+            D = np.minimum(1.0, self.init_std / s)
+            C = D[:, None] * C * D[None, :] + np.diag((1e-3 * self.motion_std) ** 2)
+            L = np.linalg.cholesky(0.5 * (C + C.T))
+            self.x += self.rng.standard_normal((self.N, 6)) @ L.T
+
+    def finish(self):
+        return None

@@ -1,0 +1,141 @@
+"""Observation models of the particle filter: the true pose must score best."""
+import numpy as np
+import pytest
+
+from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS, Observation
+from graphtrack.estimate import observation_models as om
+from graphtrack.estimate.particle_filter import ParticleFilter
+from graphtrack.estimate.pf.synthetic import make_scene
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return make_scene()
+
+
+def perturbed(x_true):
+    """x_true and its 12 perturbations by +-1 mm / +-1 deg along each axis."""
+    X = [x_true]
+    for k in range(6):
+        for sg in (1, -1):
+            dx = np.zeros(6)
+            dx[k] = sg * (1e-3 if k < 3 else np.radians(1.0))
+            X.append(x_true + dx)
+    return np.array(X)
+
+
+@pytest.mark.parametrize("model", OBSERVATION_MODELS)
+@pytest.mark.parametrize("t", [0, 90])
+def test_true_pose_scores_highest(scene, model, t):
+    rng = np.random.default_rng(t)
+    q = scene.joints(t)
+    obs = scene.observation(q, model, rng, pixel_noise=0.5, outliers=0.05,
+                            line_noise=(0.2, 0.002), marker_noise=0.5)
+    pf = ParticleFilter(scene.ctx, observation=model)
+    ll = pf.log_likelihood(q, obs, perturbed(scene.x_true))
+    assert np.all(np.isfinite(ll))
+    assert np.all(ll[0] > ll[1:]), ll - ll[0]
+
+
+@pytest.mark.parametrize("model", ["line-intensities-polar", "line-intensities"])
+def test_shaft_only_true_pose_not_worse(scene, model):
+    """Without markers the lines leave motion along/about the shaft axis free:
+    the truth still scores at least as well as every perturbation."""
+    q = scene.joints(0)
+    obs = scene.observation(q, model, np.random.default_rng(0), pixel_noise=0.0, outliers=0.0,
+                            markers=False)
+    pf = ParticleFilter(scene.ctx, observation=model, markers=False)
+    ll = pf.log_likelihood(q, obs, perturbed(scene.x_true))
+    assert np.all(ll[0] >= ll[1:] - 1e-3)
+
+
+def test_polar_pairing_is_order_free(scene):
+    q = scene.joints(0)
+    obs = scene.observation(q, "canny", np.random.default_rng(0))
+    pf = ParticleFilter(scene.ctx, observation="canny", markers=False)
+    h = pf.hypotheses(q, perturbed(scene.x_true))
+    a = om.polar_loglik(h["rho"], h["theta"], obs.lines)
+    b = om.polar_loglik(h["rho"], h["theta"], obs.lines[::-1])
+    np.testing.assert_allclose(a, b)
+    # the (-rho, theta + pi) form of a detected line is the same line
+    flipped = obs.lines.copy()
+    flipped[0] = (-flipped[0, 0], flipped[0, 1] + np.pi)
+    np.testing.assert_allclose(om.polar_loglik(h["rho"], h["theta"], flipped), a, atol=1e-9)
+    # edge_ids fix the pairing: the right ids agree with the best pairing at the truth
+    ids = om.polar_loglik(h["rho"][:1], h["theta"][:1], obs.lines, edge_ids=np.array([0, 1]))
+    np.testing.assert_allclose(ids, a[:1])
+    # one detected line: scored against its better edge
+    one = om.polar_loglik(h["rho"], h["theta"], obs.lines[1:])
+    assert one[0] == pytest.approx(0.0, abs=1e-6)
+
+
+def test_pixel_model_torch_and_numpy_agree(scene):
+    q = scene.joints(30)
+    obs = scene.observation(q, "line-intensities", np.random.default_rng(1))
+    pf = ParticleFilter(scene.ctx, markers=False)
+    x = scene.x_true + np.random.default_rng(2).standard_normal((200, 6)) * ([1e-3] * 3 + [1e-2] * 3)
+    a = pf.log_likelihood(q, obs, x)
+    om.USE_TORCH = False
+    try:
+        b = pf.log_likelihood(q, obs, x)
+    finally:
+        om.USE_TORCH = True
+    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-2)
+
+
+def test_pixel_floor_bounds_a_stray_pixel(scene):
+    """One far outlier costs at most c^2/2 nats (the robust floor)."""
+    rho = np.array([[100.0, 200.0]])
+    theta = np.array([[0.0, 0.0]])
+    good = np.stack([np.full(50, 100.0), np.arange(50.0)], 1)
+    stray = np.vstack([good, [[1e7, 5.0]]])
+    a = om.pixel_loglik(rho, theta, good)
+    b = om.pixel_loglik(rho, theta, stray)
+    assert b[0] == pytest.approx(a[0] - om.PIXEL_OUTLIER_SIGMAS ** 2 / 2, rel=1e-5)
+
+
+def test_markers_association_is_order_free_and_gated():
+    rng = np.random.default_rng(0)
+    proj = rng.uniform(0, 500, (50, 4, 2))
+    vis = np.ones((50, 4), bool)
+    det = proj[0, [2, 0, 3]] + 1.0
+    a = om.marker_loglik(proj, vis, det)
+    b = om.marker_loglik(proj, vis, det[::-1])
+    np.testing.assert_allclose(a, b)
+    assert a[0] == pytest.approx(-0.15 * 3 * np.sqrt(2))
+    far = om.marker_loglik(proj, vis, np.array([[1e6, 1e6]]))
+    np.testing.assert_allclose(far, -0.15 * 20.0)  # every particle: one outlier
+    hidden = om.marker_loglik(proj, np.zeros((50, 4), bool), det)
+    np.testing.assert_allclose(hidden, -0.15 * 20.0 * 3)
+    # more detections than model markers: unmatched ones are outliers
+    many = om.marker_loglik(proj, vis, np.vstack([proj[0] + 0.0, [[1e5, 1e5]]]))
+    assert many[0] == pytest.approx(-0.15 * 20.0)
+
+
+def test_invalid_and_empty(scene):
+    q = scene.joints(0)
+    pf = ParticleFilter(scene.ctx)
+    for model in OBSERVATION_MODELS:
+        np.testing.assert_array_equal(pf.log_likelihood(q, Observation(model), perturbed(scene.x_true)), 0.0)
+    rho = np.zeros((3, 2))
+    theta = np.zeros((3, 2))
+    valid = np.array([True, False, True])
+    ll = om.shaft_loglik(Observation("canny", lines=np.array([[1.0, 0.0]])), rho, theta, valid)
+    assert ll[1] == om.INVALID_LOGLIK and np.isfinite(ll).all()
+    with pytest.raises(ValueError):
+        om.shaft_loglik(Observation("nope", lines=np.ones((1, 2))), rho, theta, valid)
+
+
+@pytest.mark.parametrize("model", ["canny", "line-intensities"])
+def test_absurd_observations_stay_finite(scene, model):
+    q = scene.joints(0)
+    pf = ParticleFilter(scene.ctx, observation=model)
+    if model in POLAR_MODELS:
+        obs = Observation(model, lines=np.array([[1e12, 7.0], [np.nan, 0.0], [-1e30, -1e9]]),
+                          markers=np.array([[np.inf, 0], [1e9, -1e9]]))
+    else:
+        obs = Observation(model, pixels=[np.array([[1e30, -1e30], [np.nan, 1], [np.inf, 2]]),
+                                         np.full((10, 2), 1e9)],
+                          markers=np.array([[np.nan, 0], [1e12, 3]]))
+    ll = pf.log_likelihood(q, obs)
+    assert np.all(np.isfinite(ll))
