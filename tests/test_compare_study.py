@@ -1,0 +1,105 @@
+"""graphtrack compare: tables, resume, refusing to mix options, failing cells, workers, Ray."""
+import csv
+import json
+import shutil
+
+import pytest
+
+from graphtrack.cli import main
+
+FRAMES = 16
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory):
+    from graphtrack.sim.simulate import simulate
+
+    return simulate(tmp_path_factory.mktemp("sim") / "rec", "structured", frames=FRAMES, seed=3,
+                    size=(270, 480), progress=False, form="folder")
+
+
+def _compare(rec_paths, out, *extra):
+    return main(["compare", *map(str, rec_paths), "--out", str(out), "--quiet", "--max-frames", "12",
+                 "--particles", "64", *extra])
+
+
+def test_compare_writes_table_csv_png_and_resumes(rec, tmp_path):
+    out = tmp_path / "study"
+    rc = _compare([rec], out, "--estimators", "kinematics,pf", "--observations", "line-intensities")
+    assert rc == 0
+    with (out / "table.csv").open() as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["observation", "estimator", "rec", "rec_std"]
+    assert [r[:2] for r in rows[1:]] == [["—", "kinematics"], ["line-intensities", "pf"]]
+    assert all(float(r[2]) >= 0 for r in rows[1:])
+    md = (out / "table.md").read_text()
+    assert "| line-intensities | pf |" in md and "| — | kinematics |" in md and "## Runtime" in md
+    assert (out / "accumulated_error_rec.png").stat().st_size > 1000
+    assert (out / "runtime.csv").is_file() and (out / "results.csv").is_file()
+    cells = [out / "runs" / "rec" / "kinematics", out / "runs" / "rec" / "pf-line-intensities"]
+    for c in cells:
+        for name in ("trajectory.csv", "trajectory.tum", "metrics.json", "done.json"):
+            assert (c / name).is_file(), c / name
+    mtimes = {c: (c / "done.json").stat().st_mtime_ns for c in cells}
+
+    # a second run reuses both cells
+    assert _compare([rec], out, "--estimators", "kinematics,pf", "--observations", "line-intensities") == 0
+    assert {c: (c / "done.json").stat().st_mtime_ns for c in cells} == mtimes
+
+    # an interrupted study (one cell without done.json) recomputes only that cell
+    (cells[1] / "done.json").unlink()
+    from graphtrack.eval.study import StudyOptions, run_study
+
+    data = run_study([str(rec)], out, StudyOptions(estimators=["kinematics", "pf"],
+                                                   observations=["line-intensities"], max_frames=12,
+                                                   particles=64), quiet=True)
+    assert (data["ran"], data["reused"]) == (1, 1)
+    assert (cells[0] / "done.json").stat().st_mtime_ns == mtimes[cells[0]]
+    assert (cells[1] / "done.json").is_file()
+
+
+def test_compare_refuses_mixing_options(rec, tmp_path, capsys):
+    out = tmp_path / "study"
+    assert _compare([rec], out, "--estimators", "kinematics") == 0
+    capsys.readouterr()
+    rc = main(["compare", str(rec), "--out", str(out), "--quiet", "--max-frames", "8",
+               "--estimators", "kinematics"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert "other options" in err and "max_frames" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_failing_cell_is_reported_and_the_rest_completes(rec, tmp_path, capsys):
+    bad = tmp_path / "broken"
+    shutil.copytree(rec, bad)
+    (bad / "robot.json").write_text("{ not json")
+    out = tmp_path / "study"
+    rc = _compare([rec, bad], out, "--estimators", "kinematics", "--workers", "2")
+    assert rc == 0
+    assert (out / "runs" / "rec" / "kinematics" / "done.json").is_file()
+    assert not (out / "runs" / "broken" / "kinematics" / "done.json").exists()
+    assert json.loads((out / "runs" / "broken" / "kinematics" / "error.json").read_text())["error"]
+    md = (out / "table.md").read_text()
+    assert "## Errors" in md and "broken / kinematics" in md
+    with (out / "table.csv").open() as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["observation", "estimator", "rec", "rec_std", "broken", "broken_std"]
+    assert rows[1][4] == "error" and float(rows[1][2]) >= 0
+    assert "broken/kinematics failed" in capsys.readouterr().err
+
+
+def test_unknown_estimator_is_input_error(rec, tmp_path, capsys):
+    assert _compare([rec], tmp_path / "s", "--estimators", "kinematics,nope") == 2
+    assert "nope" in capsys.readouterr().err
+
+
+def test_compare_on_local_ray(rec, tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "study"
+    rc = _compare([rec], out, "--estimators", "kinematics", "--ray", "local", "--workers", "2")
+    assert rc == 0
+    cell = out / "runs" / "rec" / "kinematics"
+    for name in ("trajectory.csv", "trajectory.tum", "metrics.json", "done.json"):
+        assert (cell / name).is_file()
+    assert json.loads((cell / "done.json").read_text())["result"]["frames_tracked"] == 12
