@@ -1,0 +1,122 @@
+"""Analytic Jacobians of the factors against central differences on Pose3.retract,
+the robust kernels against gtsam's mEstimators, degenerate views."""
+import gtsam
+import numpy as np
+import pytest
+
+from factors.limb import ShaftAxis
+from factors.line_parameter import LineParameterError, line_parameter_factor
+from factors.marker import MarkerError, marker_factor
+from factors.robust import make_kernel
+from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
+from factors.synthetic import sequence
+from graphtrack.robot.features import base_features
+
+
+@pytest.fixture(scope="module")
+def scene():
+    robot, cam, E0, fr = sequence(2, seed=3, outliers=0.2, pixel_noise=2.0, line_noise=(2.0, 0.01),
+                                  marker_noise=2.0)
+    f = fr[1]
+    F = base_features(robot, f.q)
+    axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
+    return robot, cam, E0, f, F, axis
+
+
+def numerical(fn, pose, h=1e-7):
+    cols = []
+    for k in range(6):
+        x = np.zeros(6)
+        x[k] = h
+        a = fn.evaluate(pose.retract(x).matrix(), False)[0]
+        b = fn.evaluate(pose.retract(-x).matrix(), False)[0]
+        cols.append((a - b) / (2 * h))
+    return np.stack(cols, 1)
+
+
+def check(fn, pose, tol=1e-6):
+    e, J = fn.evaluate(pose.matrix())
+    Jn = numerical(fn, pose)
+    assert J.shape == (len(e), 6)
+    assert np.max(np.abs(J - Jn)) <= tol * np.max(np.abs(Jn))
+    return e, J
+
+
+@pytest.mark.parametrize("kernel", ["none", "huber", "cauchy"])
+def test_shaft_pixels_jacobian(scene, kernel):
+    robot, cam, E0, f, F, axis = scene
+    for i in range(2):
+        fn = ShaftPixelsError(f.pixels[i], axis, cam.K, 1.5, kernel)
+        # also away from the truth (the hand-eye error)
+        for E in (f.E_true, E0):
+            e, _ = check(fn, gtsam.Pose3(E), tol=2e-6 if kernel == "huber" else 1e-6)
+            assert e.shape == (len(f.pixels[i]),)
+        fn.evaluate(f.E_true)
+        assert fn.limb == i          # assigned to its own projected edge
+
+
+def test_line_parameter_jacobian_and_wrap(scene):
+    robot, cam, E0, f, F, axis = scene
+    for i in range(2):
+        fn = LineParameterError(f.lines[i], axis, cam.K)
+        check(fn, gtsam.Pose3(E0))
+        r, _ = fn.evaluate(f.E_true)
+        assert fn.limb == i and abs(r[1]) < 0.05
+        # the same line in its other representation gives the same residual
+        rho, th = f.lines[i]
+        fn2 = LineParameterError([-rho, th + np.pi], axis, cam.K)
+        r2, _ = fn2.evaluate(f.E_true)
+        np.testing.assert_allclose(r2, r, atol=1e-9)
+
+
+@pytest.mark.parametrize("kernel", ["none", "huber", "cauchy"])
+def test_marker_jacobian_and_gate(scene, kernel):
+    robot, cam, E0, f, F, axis = scene
+    pose = gtsam.Pose3(f.E_true).retract(np.array([1e-3, -5e-4, 2e-4, 5e-4, 1e-4, -2e-4]))
+    fn = MarkerError(f.markers, F.points, cam.K, 2.0, 20.0, kernel)
+    e, _ = check(fn, pose)
+    assert np.all(fn.assoc >= 0) and np.any(e != 0)
+    # a detection far from every projected marker is gated out: zero residual
+    far = np.vstack([f.markers, f.markers[:1] + 80.0])
+    fn = MarkerError(far, F.points, cam.K, 2.0, 20.0, kernel)
+    e, J = fn.evaluate(pose.matrix())
+    assert fn.assoc[-1] == -1 and np.all(e[-2:] == 0) and np.all(J[-2:] == 0)
+
+
+@pytest.mark.parametrize("kind,k", [("huber", 1.345), ("cauchy", 2.0)])
+def test_kernels_match_gtsam(kind, k):
+    kern = make_kernel(kind, k)
+    est = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[kind].Create(k)
+    for x in (0.0, 0.5, 1.3, 3.0, 12.0):
+        assert kern.loss(np.array([x]))[0] == pytest.approx(est.loss(x), rel=1e-9, abs=1e-12)
+        # 0.5 |e|^2 == rho for the reweighted residual
+        e, _ = kern.apply_scalar(np.array([x]), None)
+        assert 0.5 * e[0] ** 2 == pytest.approx(est.loss(x), rel=1e-9, abs=1e-12)
+
+
+def test_gtsam_factors_wrap_the_error_functions(scene):
+    robot, cam, E0, f, F, axis = scene
+    v = gtsam.Values()
+    x = gtsam.symbol("x", 0)
+    v.insert(x, gtsam.Pose3(E0))
+    fs = [shaft_pixels_factor(x, f.pixels[0], axis, cam.K), line_parameter_factor(x, f.lines[0], axis, cam.K),
+          marker_factor(x, f.markers, F.points, cam.K)]
+    for fac in fs:
+        assert np.isfinite(fac.error(v))
+        gf = fac.linearize(v)
+        A = gf.jacobian()[0]
+        assert A.shape[1] == 6 and np.all(np.isfinite(A))
+    assert shaft_pixels_factor(x, np.zeros((0, 2)), axis, cam.K) is None
+    assert marker_factor(x, np.zeros((0, 2)), F.points, cam.K) is None
+
+
+def test_degenerate_view_is_silent(scene):
+    robot, cam, E0, f, F, axis = scene
+    # shaft axis through the optical centre (end-on) and behind the camera
+    Einv = np.linalg.inv(E0)
+    on_axis = ShaftAxis.make(Einv[:3, 3] + 0.1 * Einv[:3, 2], Einv[:3, 2], 0.004)
+    behind = ShaftAxis.make(Einv[:3, 3] - 0.1 * Einv[:3, 2], Einv[:3, 0], 0.004)
+    for ax in (on_axis, behind):
+        for fn in (ShaftPixelsError(f.pixels[0], ax, cam.K), LineParameterError(f.lines[0], ax, cam.K)):
+            e, J = fn.evaluate(E0)
+            assert np.all(e == 0) and np.all(J == 0) and fn.limb == -1
