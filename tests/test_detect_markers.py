@@ -1,0 +1,59 @@
+"""Colour-marker blobs: sub-pixel weighted centroids in undistorted pixels."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graphtrack.detect.markers import MarkerConfig, detect_markers
+from test_detect_canny import MARKER, _disc_coverage, shaft_scene
+
+
+def paint(img, centre, r, bgr):
+    a = _disc_coverage(centre, r, *img.shape[:2])[..., None]
+    return np.clip(np.round(img * (1 - a) + np.array(bgr, float) * a), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("texture", [0.0, 15.0])
+def test_marker_centroid_on_scene(texture):
+    img = shaft_scene(texture=texture)
+    m = detect_markers(img)
+    assert m.shape == (1, 2)
+    assert np.hypot(*(m[0] - MARKER)) < 0.5
+
+
+@pytest.mark.parametrize("max_side", [480, 0])
+def test_several_markers_subpixel(max_side):
+    img = np.full((300, 400, 3), 225, np.uint8)
+    centres = [(50.3, 60.8), (200.5, 150.25), (350.9, 250.1)]
+    radii = [6.0, 9.0, 4.0]
+    for c, r in zip(centres, radii):
+        img = paint(img, c, r, (200, 60, 20))
+    m = detect_markers(img, MarkerConfig(max_side=max_side))
+    assert len(m) == 3
+    # largest first
+    np.testing.assert_allclose(m[0], centres[1], atol=0.5)
+    for c in centres:
+        assert np.min(np.hypot(*(m - c).T)) < 0.5
+
+
+def test_min_area_and_other_colour():
+    img = np.full((120, 160, 3), 230, np.uint8)
+    img = paint(img, (40.0, 40.0), 0.8, (255, 0, 0))       # speck: below min_area
+    img = paint(img, (110.0, 70.0), 7.0, (0, 200, 0))      # green paint
+    assert len(detect_markers(img)) == 0
+    green = MarkerConfig(hue_low=45, hue_high=75)
+    m = detect_markers(img, green)
+    assert len(m) == 1 and np.hypot(*(m[0] - (110.0, 70.0))) < 0.5
+
+
+@pytest.mark.parametrize("img", [
+    np.zeros((50, 60, 3), np.uint8),
+    np.full((50, 60, 3), 255, np.uint8),
+    np.tile(np.array([255, 0, 0], np.uint8), (50, 60, 1)),   # all blue: one huge blob, not a marker
+    np.tile(np.array([255, 0, 0], np.uint8), (600, 900, 1)),
+    np.zeros((8, 8, 3), np.uint8),
+    np.zeros((50, 60), np.uint8),                              # grey image: no colour
+    np.zeros((50, 60, 3), np.float32),
+])
+def test_no_markers(img):
+    assert detect_markers(img).shape == (0, 2)

@@ -1,0 +1,99 @@
+"""Observation models built from a Detection, and the overlay helper."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from graphtrack.detect import OBSERVATION_MODELS, POLAR_MODELS, Detection, make_observation
+from graphtrack.detect.canny import CannyDetector
+from graphtrack.detect.draw import YELLOW, draw_detection
+from test_detect_canny import MARKER, assert_lines_close, shaft_scene, truth_lines
+
+
+@pytest.fixture(scope="module")
+def scene():
+    img = shaft_scene(texture=10.0)
+    return img, CannyDetector().detect(img, truth_lines())
+
+
+@pytest.mark.parametrize("model", OBSERVATION_MODELS)
+def test_every_model_output_kind(scene, model):
+    _, det = scene
+    obs = make_observation(det, model)
+    assert obs.model == model
+    assert obs.edge_ids.tolist() == [0, 1]
+    assert len(obs.markers) == 1 and np.hypot(*(obs.markers[0] - MARKER)) < 0.5
+    if model in POLAR_MODELS:
+        assert obs.lines.shape == (2, 2) and obs.pixels == []
+        assert_lines_close(obs.lines, truth_lines(), px=2.0, rad=0.02)
+    else:
+        assert len(obs.lines) == 0 and len(obs.pixels) == 2
+        for pts, (rho, th), seg in zip(obs.pixels, truth_lines(), det.shaft_segments):
+            assert pts.ndim == 2 and pts.shape[1] == 2 and len(pts) > 10
+            # every pixel is an edge pixel (H >= beta) within alpha of the segment / endpoints
+            assert np.all(det.heatmap[pts[:, 1].astype(int), pts[:, 0].astype(int)] >= 0.9)
+            assert np.all(np.abs(np.cos(th) * pts[:, 0] + np.sin(th) * pts[:, 1] - rho) <= 10.0 + 1e-9)
+            if model == "endpoint-intensities":
+                da = np.hypot(*(pts - seg[:2]).T)
+                db = np.hypot(*(pts - seg[2:]).T)
+                assert np.all(np.minimum(da, db) <= 10.0 + 1e-9)
+    assert obs.has_shaft and not obs.empty
+
+
+def test_sets_grow_with_alpha(scene):
+    _, det = scene
+    small = make_observation(det, "line-intensities", alpha=3.0)
+    big = make_observation(det, "line-intensities", alpha=10.0)
+    assert all(len(a) <= len(b) for a, b in zip(small.pixels, big.pixels))
+
+
+def test_markers_off_and_rng_reproducible(scene):
+    _, det = scene
+    a = make_observation(det, "line-intensities-polar", use_markers=False, rng=3)
+    b = make_observation(det, "line-intensities-polar", use_markers=False, rng=np.random.default_rng(3))
+    assert len(a.markers) == 0
+    np.testing.assert_array_equal(a.lines, b.lines)
+
+
+def test_hidden_edge_keeps_edge_id():
+    seg = np.array([[0.0, 470.0, 620.0, 240.0]])
+    from graphtrack.geometry.lines import line_through
+    rho, th = line_through(seg[0, :2], seg[0, 2:])
+    det = Detection(shaft_segments=seg, shaft_lines=np.array([[rho, th]]), edge_ids=np.array([1]))
+    for model in OBSERVATION_MODELS:
+        obs = make_observation(det, model)
+        assert obs.edge_ids.tolist() == [1], model
+        # no heatmap: H = 1 inside the sets (full discs / capsule: the RANSAC
+        # line is only known to pass through them)
+        if model in POLAR_MODELS:
+            assert obs.lines.shape == (1, 2)
+            drho = abs(obs.lines[0, 0] - rho)
+            assert abs(obs.lines[0, 1] - th) < 0.04 and drho < 10.0, model
+        else:
+            assert len(obs.pixels) == 1 and len(obs.pixels[0]) > 100
+
+
+@pytest.mark.parametrize("model", OBSERVATION_MODELS)
+def test_empty_detection(model):
+    obs = make_observation(Detection(), model)
+    assert obs.empty and len(obs.edge_ids) == 0
+    det = CannyDetector().detect(np.zeros((64, 64, 3), np.uint8))
+    assert make_observation(det, model).empty
+
+
+def test_unknown_model():
+    with pytest.raises(ValueError):
+        make_observation(Detection(), "nope")
+
+
+def test_draw_detection(scene):
+    img, det = scene
+    out = draw_detection(img, det, make_observation(det, "line-intensities"))
+    assert out.shape == img.shape and out.dtype == np.uint8
+    assert out is not img and not np.array_equal(out, img)
+    assert np.all(out == YELLOW, axis=2).sum() > 500      # thick shaft segments
+    yellowish = (out[:, :, 0] < 120) & (out[:, :, 1] > 170) & (out[:, :, 2] > 170)
+    assert yellowish[:, -50:].any()                      # full lines reach past the segments
+    out2 = draw_detection(img[:, :, 0], det, make_observation(det, "line-intensities-polar"))
+    assert out2.shape == img.shape
+    draw_detection(np.zeros((8, 8, 3), np.uint8), Detection())
