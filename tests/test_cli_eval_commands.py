@@ -25,7 +25,7 @@ def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
         assert est in text
     assert "video:" in text and "plot:" in text
     recs = sorted(p.name for p in (out / "runs").iterdir())
-    assert len(recs) == 2 and any("tissue" in r for r in recs) and any("structured" in r for r in recs)
+    assert recs == ["structured", "tissue"]
     tissue = next(r for r in recs if "tissue" in r)
     from graphtrack.eval.overlay import video_frame_count
 

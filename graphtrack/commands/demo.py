@@ -15,9 +15,9 @@ import sys
 from pathlib import Path
 
 #: Demo defaults: short recordings at the camera's half resolution.
-FRAMES = 60
-SIZE = (270, 480)
-PARTICLES = 300
+FRAMES = 150
+SIZE = (540, 960)
+PARTICLES = 1000
 SEED = 0
 
 
@@ -44,6 +44,7 @@ def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZ
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
     say(f"graphtrack demo: simulating {frames}-frame recordings ({size[1]}x{size[0]}) into the cache "
         f"(first run only)")
+    size = tuple(size)
     recs = []
     for scene in ("structured", "tissue"):
         recs.append(str(cached_recording(scene, frames=frames, seed=SEED, size=size, progress=not quiet)))
@@ -56,7 +57,8 @@ def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZ
     def wants_video(cell) -> bool:  # one overlay video: the smoother on the tissue recording
         return cell.estimator == "smoother" and cell.path == str(Path(tissue).resolve())
 
-    data = run_study(recs, out, options, workers=1, quiet=quiet, video=wants_video)
+    data = run_study(recs, out, options, workers=1, quiet=quiet, video=wants_video,
+                     names=["structured", "tissue"])
     videos = [Path(c.out) / "overlay.mp4" for c in data["cells"] if c.video]
     data["video"] = videos[0] if videos and videos[0].is_file() else None
     data["table_text"] = format_table(data)

@@ -121,11 +121,15 @@ def recording_names(paths: list[str]) -> list[str]:
     return names
 
 
-def plan(paths: list[str], options: StudyOptions, out: Path) -> tuple[list[Cell], list[str]]:
-    """The cells to run, in table order, and notes about skipped combinations."""
+def plan(paths: list[str], options: StudyOptions, out: Path,
+         names: list[str] | None = None) -> tuple[list[Cell], list[str]]:
+    """The cells to run, in table order, and notes about skipped combinations.
+
+    names: the recordings' names in the tables and under runs/ (default: folder names).
+    """
     cells, notes = [], []
     opts = options.cell_options()
-    names = recording_names(paths)
+    names = list(names) if names is not None else recording_names(paths)
     for est in options.estimators:
         if est == "kinematics":
             continue
@@ -512,7 +516,7 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
             frames, errs = tip_error_series(traj, labels, diag)
             if len(frames) == 0:
                 continue
-            ax.plot(frames, accumulated_error(errs), label=f"{c.row[1]} / {c.row[0]}", lw=1.4)
+            ax.plot(frames, accumulated_error(errs), label=c.estimator if c.observation is None else f"{c.estimator} / {c.observation}", lw=1.4)
             drawn += 1
         ax.set_xlabel("frame")
         ax.set_ylabel("accumulated tip error (% of diagonal)")
@@ -530,7 +534,8 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
 
 # -- the whole study ----------------------------------------------------------------------
 def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers: int = 1,
-              ray_address: str | None = None, quiet: bool = False, video=None) -> dict:
+              ray_address: str | None = None, quiet: bool = False, video=None,
+              names: list[str] | None = None) -> dict:
     """Run (or continue) a study; write the tables and plots; return the table data
     plus ``ran`` (cells computed now), ``reused`` (cells already done) and ``cells``.
 
@@ -545,7 +550,7 @@ def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers:
             raise InputError(f"{p}: recording not found")
     if workers < 1:
         raise InputError("--workers must be at least 1")
-    cells, notes = plan([str(p) for p in paths], options, out)
+    cells, notes = plan([str(p) for p in paths], options, out, names)
     if not cells:
         raise InputError("no estimator/observation combination to run")
     check_study_folder(out, options, cells)
