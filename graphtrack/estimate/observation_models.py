@@ -39,6 +39,13 @@ away from the camera count as unmatched (cost gate).
 
 Degenerate projections (valid False) get ``INVALID_LOGLIK``, a very low but
 finite value.
+
+Defaults: gamma_rho = 0.5 /px and gamma_theta = 50 /rad make one nat of
+evidence ~2 px of rho or ~1.1 deg of theta, the scale of a detected edge's
+error; at ~12 cm a 1 mm / 1 deg pose error then costs 0.5-14 nats. sigma = 2 px
+with the floor at 3 sigma (a stray pixel costs at most 4.5 nats). The plain
+sum (pixel_weight 1) is kept: tempering to 0.1 changed the synthetic
+convergence by < 0.1 mm once the filter roughens (particle_filter.py).
 """
 from __future__ import annotations
 
@@ -229,9 +236,11 @@ def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarr
         count *= max(M, D) - i
     if count <= MAX_ENUMERATED:
         assign = _assignments(M, D)  # (A, D)
-        cols = np.arange(D)
-        dd = np.concatenate([d, np.full((n, 1, D), gate)], axis=1)  # row M = unmatched
-        cost = dd[:, np.where(assign < 0, M, assign), cols].sum(axis=2)  # (N, A)
+        dt = np.concatenate([d, np.full((n, 1, D), gate)], axis=1).transpose(0, 2, 1).copy()
+        a = np.where(assign < 0, M, assign)  # row M of d = unmatched (cost gate)
+        cost = dt[:, 0, a[:, 0]]  # (N, A)
+        for k in range(1, D):
+            cost += dt[:, k, a[:, k]]
         total = cost.min(axis=1)
     else:
         from scipy.optimize import linear_sum_assignment
