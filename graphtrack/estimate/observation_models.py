@@ -228,16 +228,18 @@ def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarr
     D = len(detected)
     if D == 0 or M == 0:
         return np.zeros(n)
-    diff = projected[:, :, None, :] - detected[None, None, :, :]
-    d = np.sqrt(diff[..., 0] ** 2 + diff[..., 1] ** 2)  # (N, M, D)
-    d = np.where(np.isfinite(d) & visible[:, :, None], np.minimum(d, gate), gate)
+    # dt[n, k, j]: truncated distance of detected k to projected j; column M = unmatched
+    dt = np.full((n, D, M + 1), gate)
+    dist = np.hypot(projected[:, None, :, 0] - detected[None, :, None, 0],
+                    projected[:, None, :, 1] - detected[None, :, None, 1])  # (N, D, M)
+    ok = np.isfinite(dist) & visible[:, None, :]
+    dt[:, :, :M] = np.where(ok, np.minimum(dist, gate), gate)
     count = 1
     for i in range(min(M, D)):
         count *= max(M, D) - i
     if count <= MAX_ENUMERATED:
-        assign = _assignments(M, D)  # (A, D)
-        dt = np.concatenate([d, np.full((n, 1, D), gate)], axis=1).transpose(0, 2, 1).copy()
-        a = np.where(assign < 0, M, assign)  # row M of d = unmatched (cost gate)
+        a = _assignments(M, D)  # (A, D) model index per detected marker, -1 = unmatched
+        a = np.where(a < 0, M, a)
         cost = dt[:, 0, a[:, 0]]  # (N, A)
         for k in range(1, D):
             cost += dt[:, k, a[:, k]]
@@ -246,8 +248,8 @@ def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarr
         from scipy.optimize import linear_sum_assignment
 
         i0 = 0 if estimate_index is None else estimate_index
-        r, c = linear_sum_assignment(d[i0])
-        total = d[:, r, c].sum(axis=1) + gate * (D - len(c))
+        r, c = linear_sum_assignment(dt[i0, :, :M])
+        total = dt[:, r, c].sum(axis=1) + gate * (D - len(r))
     return -gamma * total
 
 

@@ -60,7 +60,6 @@ from graphtrack.estimate.base import Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
-from graphtrack.geometry.cylinder import project_cylinder
 from graphtrack.geometry.se3 import average_rotations
 from graphtrack.robot.features import base_features
 
@@ -89,6 +88,41 @@ def rodrigues(w: np.ndarray) -> np.ndarray:
     R[:, 1, 2] -= aw[:, 0]
     R[:, 2, 1] += aw[:, 0]
     return R
+
+
+_COS_END_ON = np.cos(np.radians(2.0))
+
+
+def limb_lines(p0: np.ndarray, d: np.ndarray, r: float, K: np.ndarray):
+    """:func:`graphtrack.geometry.cylinder.project_cylinder` for (N, 3) inputs with
+    UNIT d, written out for speed (about half the numpy calls); same closed form,
+    same line order, canonical (rho, theta) and ``valid`` (end-on at 2 deg).
+    Returns rho (N, 2) px, theta (N, 2) rad, valid (N,)."""
+    pd = np.einsum("ni,ni->n", p0, d)
+    m = p0 - pd[:, None] * d
+    mn = np.sqrt(np.einsum("ni,ni->n", m, m))
+    inside = mn <= r * (1.0 + 1e-9)
+    safe = np.where(inside, 1.0, mn)
+    u = m / safe[:, None]
+    v = np.cross(d, u)
+    alpha = np.where(inside, 0.0, r / safe)[:, None]
+    beta = np.sqrt(np.clip(1.0 - alpha * alpha, 0.0, None))
+    n = alpha[:, None, :] * u[:, None, :] + np.array([1.0, -1.0])[None, :, None] * (beta * v)[:, None, :]
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    A = n[..., 0] / fx
+    B = n[..., 1] / fy
+    C = n[..., 2] - A * cx - B * cy
+    s = np.hypot(A, B)
+    theta = np.arctan2(B, A)  # (-pi, pi]
+    rho = -C / np.where(s == 0, 1.0, s)
+    flip = (theta < 0) | (theta >= np.pi)
+    theta = np.where(theta < 0, theta + np.pi, np.where(theta >= np.pi, theta - np.pi, theta))
+    rho = np.where(flip, -rho, rho)
+    at_inf = np.any((s < 1e-12 * np.maximum(np.abs(C), 1e-300)) | (s == 0), axis=1)
+    pn = np.sqrt(np.einsum("ni,ni->n", p0, p0))
+    end_on = np.abs(pd) >= _COS_END_ON * np.maximum(pn, 1e-300)
+    valid = ~(inside | at_inf | end_on | (p0[:, 2] <= 0))
+    return rho, theta, valid
 
 
 class ParticleFilter:
@@ -212,7 +246,7 @@ class ParticleFilter:
         b = x[:, :3]
         p0 = W[:, :, 0] + b
         d = W[:, :, 1]
-        rho, theta, valid = project_cylinder(p0, d, r, self.K)
+        rho, theta, valid = limb_lines(p0, d, r, self.K)
         M = len(on_shaft)
         pts = W[:, :, 2:2 + M] + b[:, :, None]  # (n, 3, M)
         z = pts[:, 2]
