@@ -24,7 +24,7 @@ from graphtrack.estimate.context import TrackingContext
 from graphtrack.robot.features import base_features, shaft_lines
 
 STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
-STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 
 
 @dataclass

@@ -16,6 +16,10 @@ from typing import Protocol
 
 import numpy as np
 
+#: trajectory.csv columns of an estimator's uncertainty: the standard deviations of
+#: the LEFT camera-frame correction E = Exp(xi) . E_hat, xi = (b [m], w [rad]).
+STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+
 
 @dataclass
 class Frame:

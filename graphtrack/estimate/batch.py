@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import (estimate_extra, frame_factors, gaussian_bw, key,
                                        left_from_right_cov, split_options)
@@ -33,6 +33,7 @@ class BatchEstimator:
 
     name = "batch"
     uses_observations = True
+    extra_columns = STD_COLUMNS
 
     def __init__(self, ctx: TrackingContext, observation: str = "line-intensities", markers: bool = True,
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,

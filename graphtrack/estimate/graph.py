@@ -30,7 +30,7 @@ from graphtrack.robot.features import base_features
 _PERM = np.array([3, 4, 5, 0, 1, 2])
 
 #: the extra trajectory columns (left perturbation, translation first)
-STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 
 
 def key(k: int) -> int:

@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import (estimate_extra, frame_factors, gaussian_bw, key,
                                        left_from_right_cov, split_options)
@@ -52,6 +52,7 @@ class FixedLagSmootherEstimator:
 
     name = "smoother"
     uses_observations = True
+    extra_columns = STD_COLUMNS + ("smoother_ms",)
 
     def __init__(self, ctx: TrackingContext, observation: str = "line-intensities", lag: float = 1.0,
                  smoother: str = "isam2", markers: bool = True,

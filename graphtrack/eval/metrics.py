@@ -135,7 +135,7 @@ def nees(E_true: np.ndarray, E_est: np.ndarray, std: np.ndarray) -> np.ndarray:
     return np.where(ok, v, np.nan)
 
 
-STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
+from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 #: chi-square(6) two-sided 95% bounds of a single NEES value.
 NEES_95 = (1.2373442457912, 14.4493753446378)
 
