@@ -113,3 +113,26 @@ def test_without_prediction_needs_a_pair():
     # parallel, overlapping, but 2 px apart (one thick line's two sides)
     lines, segs = candidates(((0.0, 100.0), (300.0, 100.0)), ((0.0, 102.0), (300.0, 102.0)))
     assert associate(lines, segs).k == 0
+
+
+def shifted(edge, d):
+    """The edge moved by d px along its normal (cos theta, sin theta)."""
+    (rho, theta), _ = seg_line(*edge)
+    n = d * np.array([np.cos(theta), np.sin(theta)])
+    return tuple(tuple(np.asarray(p) + n) for p in edge)
+
+
+def test_pair_term_rejects_specular_streak():
+    # both predicted edges 8 px off the truth (an error in E shifts both alike);
+    # a streak inside the shaft lies 2 px from predicted edge 1, the true edge 8 px
+    (r0, t0), _ = seg_line(*EDGE0)
+    (r1, t1), _ = seg_line(*EDGE1)
+    inward = np.sign(r0 - r1)             # normal direction from edge 1 towards edge 0
+    pred_edges = [shifted(EDGE0, 8 * inward), shifted(EDGE1, 8 * inward)]
+    pred, _ = candidates(*pred_edges)
+    streak = shifted(EDGE1, 10 * inward)
+    lines, segs = candidates(EDGE0, streak, EDGE1)
+    a = associate(lines, segs, pred)
+    assert a.indices.tolist() == [0, 2] and a.edge_ids.tolist() == [0, 1]
+    b = associate(lines, segs, pred, AssociationConfig(pair_weight=0.0))
+    assert b.indices.tolist() == [0, 1]   # nearest-to-prediction alone takes the streak

@@ -15,10 +15,19 @@ from the current estimate of E):
     cost_ij = |d_theta_ij| / max_angle + d_off_ij / max_offset
               + length_weight (1 - L_i / max_i L_i)
 
-and the Hungarian assignment (scipy's linear_sum_assignment) with ungated pairs
-at a prohibitive cost: each predicted edge takes at most one candidate, each
-candidate at most one edge, the number of gated matches is maximised first and
-the total cost second. Extra lines (tissue folds, jaws, specular streaks)
+Each predicted edge takes at most one candidate, each candidate at most one
+edge; the number of gated matches is maximised first, the cost second. For the
+usual two predicted edges the choice is joint: with the signed offsets
+s_ij = cos(theta_j) m_x + sin(theta_j) m_y - rho_j (in edge 0's normal
+direction), a pair (i for edge 0, i' for edge 1) costs
+
+    cost_i0 + cost_i'1 + pair_weight |s_i0 - s_i'1| / max_offset,
+
+since an error in E shifts both limbs alike while a specular streak inside
+the shaft or a tissue fold beside it changes the apparent width; with no
+gated pair, the best single gated candidate is kept. Otherwise (one predicted
+edge, or pair_weight = 0) it is the Hungarian assignment (scipy's
+linear_sum_assignment) with ungated pairs at a prohibitive cost. Extra lines (tissue folds, jaws, specular streaks)
 outside the gates are ignored; an edge with no gated candidate (hidden) is
 simply absent (k = 1 or 0). Rows of ``predicted_lines`` that are not finite
 are skipped. The midpoint offset is used rather than d_rho because rho is
@@ -52,6 +61,7 @@ class AssociationConfig:
     max_angle: float = 0.15      #: rad, gate on |d_theta| to the predicted edge
     max_offset: float = 40.0     #: px, gate on the midpoint's distance to it
     length_weight: float = 0.1   #: prefer longer candidates among gated ones
+    pair_weight: float = 2.0     #: penalty on the two edges' differing shifts (0: off)
     # without a prediction
     parallel_tol: float = 0.15   #: rad, max angle between the two shaft edges
     min_width: float = 8.0       #: px, min separation of the two edges
@@ -97,6 +107,26 @@ def _result(idx, ids, lines, seg) -> Association:
     return Association(idx, ids, lines[idx].copy(), segs.copy())
 
 
+def _best_pair(cost, gated, sig, pr, pid, cfg, L, seg) -> Association:
+    """Two predicted edges: the best gated pair under the joint cost (module doc),
+    else the best single gated candidate."""
+    # signed offsets in the first predicted edge's normal direction
+    same = np.cos(pr[0, 1]) * np.cos(pr[1, 1]) + np.sin(pr[0, 1]) * np.sin(pr[1, 1]) >= 0
+    s0, s1 = sig[:, 0], sig[:, 1] * (1.0 if same else -1.0)
+    g0, g1 = np.flatnonzero(gated[:, 0]), np.flatnonzero(gated[:, 1])
+    if len(g0) and len(g1):
+        pair = (cost[g0, 0][:, None] + cost[g1, 1][None, :]
+                + cfg.pair_weight * np.abs(s0[g0][:, None] - s1[g1][None, :]) / cfg.max_offset)
+        pair = np.where(g0[:, None] == g1[None, :], np.inf, pair)
+        if np.isfinite(pair).any():
+            a, b = np.unravel_index(int(np.argmin(pair)), pair.shape)
+            return _result([g0[a], g1[b]], pid, L, seg)
+    if not gated.any():
+        return Association()
+    i, j = np.unravel_index(int(np.argmin(np.where(gated, cost, np.inf))), cost.shape)
+    return _result([i], [pid[j]], L, seg)
+
+
 def associate(lines: np.ndarray, segments: np.ndarray | None = None,
               predicted_lines: np.ndarray | None = None,
               config: AssociationConfig | None = None,
@@ -130,12 +160,20 @@ def associate(lines: np.ndarray, segments: np.ndarray | None = None,
                          + np.sin(pr[None, :, 1]) * mid[:, None, 1] - pr[None, :, 0])
         else:
             off = np.abs(drho)
+        if mid is not None:
+            sig = (np.cos(pr[None, :, 1]) * mid[:, None, 0] + np.sin(pr[None, :, 1]) * mid[:, None, 1]
+                   - pr[None, :, 0])
+        else:
+            sig = drho
+        off = np.abs(sig)
         dth = np.abs(dth)
         gated = (dth <= cfg.max_angle) & (off <= cfg.max_offset) & ok[:, None]
         lmax = max(float(np.max(length[ok])), 1e-9)
         cost = (dth / cfg.max_angle + off / cfg.max_offset
                 + cfg.length_weight * (1.0 - np.clip(length / lmax, 0.0, 1.0))[:, None])
         cost = np.where(gated, np.nan_to_num(cost, nan=_BIG), _BIG)
+        if len(pid) == 2 and cfg.pair_weight > 0:
+            return _best_pair(cost, gated, sig, pr, pid, cfg, L, seg)
         rows, cols = linear_sum_assignment(cost.T)  # rows: predicted, cols: candidates
         keep = gated[cols, rows]
         return _result(cols[keep], pid[rows[keep]], L, seg)

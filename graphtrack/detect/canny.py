@@ -67,11 +67,12 @@ class CannyConfig:
     cluster_rho: float = 5.0        #: near-duplicate lines (px)
     cluster_theta: float = 0.09     #: near-duplicate lines (rad)
     max_hough: int = 300            #: Hough peaks considered
-    max_lines: int = 40             #: lines kept after clustering
+    max_lines: int = 60             #: strongest peaks refined
+    cluster_peaks: bool = False     #: also cluster the raw peaks (before refinement)
     refine: bool = True             #: TLS refit of each Hough line
     refine_band: float = 1.5        #: px, final inlier band (>= 1/s)
     orientation_tol: float = 0.35   #: rad, refit pixels' gradient vs normal; None: off
-    fine_theta: float = 0.06        #: rad, half-range of the fine local Hough
+    fine_theta: float = 0.1         #: rad, half-range of the fine local Hough
     hough_orientation_tol: float | None = 0.2  #: rad, oriented voting; None: plain Hough
     max_gap: float = 30.0           #: px, gap splitting a line's edge pixels
     min_length: float = 40.0        #: px, shortest candidate segment
@@ -182,10 +183,13 @@ class CannyDetector:
         c, sn = np.cos(hl[:, 1]), np.sin(hl[:, 1])
         rho = (hl[:, 0] - (0.5 * s - 0.5) * (c + sn)) / s
         rho, theta = canonical(rho, hl[:, 1])
-        H, W = shape
-        rc = rho - (np.cos(theta) * (W - 1) / 2 + np.sin(theta) * (H - 1) / 2)
-        drho, dth = line_difference(rc[:, None], theta[:, None], rc[None], theta[None])
-        near = (np.abs(drho) <= cfg.cluster_rho) & (np.abs(dth) <= cfg.cluster_theta + 1e-9)
+        if cfg.cluster_peaks:
+            H, W = shape
+            rc = rho - (np.cos(theta) * (W - 1) / 2 + np.sin(theta) * (H - 1) / 2)
+            drho, dth = line_difference(rc[:, None], theta[:, None], rc[None], theta[None])
+            near = (np.abs(drho) <= cfg.cluster_rho) & (np.abs(dth) <= cfg.cluster_theta + 1e-9)
+        else:  # only exact duplicates (a bin shared by two sectors)
+            near = (np.abs(rho[:, None] - rho[None]) < 1e-6) & (np.abs(theta[:, None] - theta[None]) < 1e-6)
         keep = _nms(near, cfg.max_lines)
         return np.stack([rho[keep], theta[keep]], 1)
 

@@ -35,6 +35,7 @@ class MarkerConfig:
     max_markers: int = 32         #: keep the largest blobs
     max_side: int = 480           #: candidate search on a copy this size (0: full res)
     margin: int = 4               #: px around a candidate box measured at full res
+    max_boxes: int = 12           #: more candidates than this: one full-res pass instead
 
 
 def _bgr(image: np.ndarray) -> np.ndarray | None:
@@ -96,10 +97,15 @@ def detect_markers(image: np.ndarray, config: MarkerConfig | None = None) -> np.
         if cv2.countNonZero(mask) == 0:
             return np.zeros((0, 2))
         n, _, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-        cs, as_ = [], []
         sx, sy = W / w, H / h
-        big = stats[1:, cv2.CC_STAT_AREA] * sx * sy <= max_area * 1.5
-        for bx, by, bw, bh, _ in stats[1:][big]:
+        area = stats[1:, cv2.CC_STAT_AREA] * sx * sy
+        boxes = stats[1:][(area >= 0.25 * cfg.min_area) & (area <= 1.5 * max_area)]
+        cs, as_ = [], []
+        if len(boxes) > cfg.max_boxes:  # many candidates: one full-resolution pass is cheaper
+            c, a = _blobs(img, cfg, max_area)
+            cs, as_ = [c], [a]
+            boxes = boxes[:0]
+        for bx, by, bw, bh, _ in boxes:
             x0 = max(0, int(np.floor(bx * sx)) - cfg.margin)
             y0 = max(0, int(np.floor(by * sy)) - cfg.margin)
             x1 = min(W, int(np.ceil((bx + bw) * sx)) + cfg.margin)
