@@ -1,0 +1,101 @@
+"""The learned detector's network: a tiny fully-convolutional line / junction net.
+
+``LineNet`` maps an RGB image at reduced resolution (the detector feeds it the
+undistorted frame resized by 1/4, 540x960 -> 135x240) to two maps of the same
+size, as logits:
+
+    channel 0: the line heatmap (sigmoid -> H in [0, 1]): 1 on the shaft's
+               silhouette edges, 0 elsewhere;
+    channel 1: the junction heatmap: 1 at segment endpoints (the shaft end
+               near the wrist, and where an edge leaves the image).
+
+Architecture (a small U-Net of depthwise-separable blocks, ~25k parameters,
+~0.1 GMAC at 135x240, so it runs in a few ms on one CPU core):
+
+    stem   3x3 conv 3->C0                 full (of the reduced) resolution
+    down1  dw-sep stride 2 C0->2C,  dw-sep 2C->2C                   1/2
+    down2  dw-sep stride 2 2C->4C, dw-sep dilated 2 and 4 (context)  1/4
+    up1    1x1 4C->2C, bilinear x2, + down1, dw-sep                 1/2
+    up2    1x1 2C->C0, bilinear x2, + stem,  dw-sep                 full
+    head   1x1 C0->2
+
+with C = ``width`` (16), C0 = ``stem`` (8): few channels at the largest
+resolution, where the time goes. BatchNorm + ReLU after every conv but the
+head; :meth:`LineNet.fused` folds the BatchNorms for inference.
+Inputs: float (B, 3, h, w) RGB in [0, 1]; any h, w >= 4 (the decoder
+resizes to the skip connections' sizes, so no padding is needed).
+"""
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+#: Version tag stored with the weights; bump when the architecture changes.
+ARCH = "linenet-v1"
+
+
+class ConvBNReLU(nn.Sequential):
+    def __init__(self, cin: int, cout: int, k: int = 3, stride: int = 1, dilation: int = 1,
+                 groups: int = 1):
+        pad = dilation * (k // 2)
+        super().__init__(nn.Conv2d(cin, cout, k, stride, pad, dilation=dilation, groups=groups, bias=False),
+                         nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+class DWSep(nn.Sequential):
+    """Depthwise 3x3 (stride / dilation) then pointwise 1x1, each with BN + ReLU."""
+
+    def __init__(self, cin: int, cout: int, stride: int = 1, dilation: int = 1):
+        super().__init__(ConvBNReLU(cin, cin, 3, stride, dilation, groups=cin), ConvBNReLU(cin, cout, 1))
+
+
+class LineNet(nn.Module):
+    def __init__(self, width: int = 16, stem: int = 8):
+        super().__init__()
+        c, c0 = int(width), int(stem)
+        self.width, self.stem_width = c, c0
+        self.stem = ConvBNReLU(3, c0, 3)
+        self.down1 = nn.Sequential(DWSep(c0, 2 * c, stride=2), DWSep(2 * c, 2 * c))
+        self.down2 = nn.Sequential(DWSep(2 * c, 4 * c, stride=2), DWSep(4 * c, 4 * c, dilation=2),
+                                   DWSep(4 * c, 4 * c, dilation=4))
+        self.lat1 = ConvBNReLU(4 * c, 2 * c, 1)
+        self.up1 = DWSep(2 * c, 2 * c)
+        self.lat2 = ConvBNReLU(2 * c, c0, 1)
+        self.up2 = DWSep(c0, c0)
+        self.head = nn.Conv2d(c0, 2, 1)
+        self.register_buffer("mean", torch.tensor([0.45, 0.40, 0.40]).view(1, 3, 1, 1))
+        self.register_buffer("std", torch.tensor([0.25, 0.25, 0.25]).view(1, 3, 1, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = (x - self.mean) / self.std
+        s0 = self.stem(x)
+        s1 = self.down1(s0)
+        s2 = self.down2(s1)
+        u1 = F.interpolate(self.lat1(s2), size=s1.shape[-2:], mode="bilinear", align_corners=False)
+        u1 = self.up1(u1 + s1)
+        u2 = F.interpolate(self.lat2(u1), size=s0.shape[-2:], mode="bilinear", align_corners=False)
+        u2 = self.up2(u2 + s0)
+        return self.head(u2)
+
+    @torch.no_grad()
+    def fused(self) -> "LineNet":
+        """An inference copy with every BatchNorm folded into its conv (eval only)."""
+        import copy
+
+        net = copy.deepcopy(self).eval()
+        for m in net.modules():
+            if isinstance(m, ConvBNReLU) and isinstance(m[1], nn.BatchNorm2d):
+                conv, bn = m[0], m[1]
+                scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+                fconv = nn.Conv2d(conv.in_channels, conv.out_channels, conv.kernel_size, conv.stride,
+                                  conv.padding, conv.dilation, conv.groups, bias=True)
+                fconv.weight.copy_(conv.weight * scale.view(-1, 1, 1, 1))
+                fconv.bias.copy_(bn.bias - bn.running_mean * scale)
+                m[0] = fconv
+                m[1] = nn.Identity()
+        return net
+
+
+def build(width: int = 16, stem: int = 8) -> LineNet:
+    return LineNet(width, stem)

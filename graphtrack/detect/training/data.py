@@ -1,0 +1,101 @@
+"""Training frames for the learned detector from the simulator.
+
+``generate(frames, seed)`` draws ``ceil(frames / per_recording)`` short
+simulated recordings (:class:`graphtrack.sim.simulate.Simulation`, the
+in-memory form of :func:`graphtrack.sim.simulate`), alternating the two
+scenes (structured, tissue); 3 in 4 are domain-randomised (``randomize=True``:
+background kind and colours, shaft colour and gloss, light and fall-off,
+vignetting, blur, noise, distortion, intrinsics, flaps), 1 in 4 use the plain
+scene look. Recording k uses seed ``TRAIN_SEED_BASE + 1000 * seed + k``
+(far from the small seeds of tests and benchmarks). From each recording's
+``SPAN``-frame trajectory ``per_recording`` frames spread evenly over it are
+rendered at ``render_size`` (default 270x480, half the camera's 540x960: 4x
+cheaper, and the same 135x240 network input after resizing).
+
+Per rendered frame: the raw image is undistorted with the recording's camera
+(same K), resized to ``scale`` of the FULL 540x960 geometry (135x240,
+cv2.INTER_AREA), and labelled with the visible shaft edge segments
+(:func:`graphtrack.detect.training.labels.shaft_edge_segments` with truth E_t
+and the joint READINGS q~_t), minus the parts under a tissue flap (sampled
+every reduced px, mapped to raw pixels, dropped where the flap mask > 1/4).
+Returns images (N, h, w, 3) uint8 BGR and segments (N, MAX_SEG, 4) float32 in
+reduced px (NaN rows for absent ones).
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import cv2
+import numpy as np
+
+from graphtrack.detect.training.labels import shaft_edge_segments, to_reduced
+
+TRAIN_SEED_BASE = 100_000
+SPAN = 150            #: frames of each recording's trajectory (5 s)
+MAX_SEG = 6           #: segments per frame (2 edges, each split at most twice by a flap)
+
+
+def _visible_runs(seg: np.ndarray, camera, flap, step: float) -> list[np.ndarray]:
+    """Split a full-res undistorted segment where it lies under the flap (raw mask)."""
+    if flap is None:
+        return [seg]
+    m, (v0, v1, u0, u1) = flap
+    a, b = seg[:2], seg[2:]
+    n = max(2, int(math.ceil(np.hypot(*(b - a)) / step)) + 1)
+    t = np.linspace(0.0, 1.0, n)
+    pts = a[None] + t[:, None] * (b - a)[None]
+    raw = camera.distort_pixels(pts)
+    iu, iv = np.round(raw[:, 0]).astype(int) - u0, np.round(raw[:, 1]).astype(int) - v0
+    inside = (iu >= 0) & (iu < m.shape[1]) & (iv >= 0) & (iv < m.shape[0])
+    hidden = np.zeros(n, bool)
+    hidden[inside] = m[iv[inside], iu[inside]] > 64
+    runs, start = [], None
+    for i in range(n + 1):
+        vis = i < n and not hidden[i]
+        if vis and start is None:
+            start = i
+        elif not vis and start is not None:
+            if i - 1 > start:
+                runs.append(np.r_[pts[start], pts[i - 1]])
+            start = None
+    return runs
+
+
+def generate(frames: int, seed: int = 0, per_recording: int = 24, render_size=(270, 480),
+             full_size=(540, 960), scale: float = 0.25, plain_every: int = 4, progress=None):
+    """(images (N, h, w, 3) uint8, segments (N, MAX_SEG, 4) float32, info dict); see the module doc."""
+    from graphtrack.sim.scene import SCENES
+    from graphtrack.sim.simulate import Simulation
+
+    frames = int(frames)
+    per = max(1, min(int(per_recording), frames))
+    n_rec = int(math.ceil(frames / per))
+    hs, ws = int(round(full_size[0] * scale)), int(round(full_size[1] * scale))
+    images = np.zeros((frames, hs, ws, 3), np.uint8)
+    segs = np.full((frames, MAX_SEG, 4), np.nan, np.float32)
+    t0 = time.perf_counter()
+    k = 0
+    for r in range(n_rec):
+        scene = SCENES[r % len(SCENES)]
+        randomize = (r % plain_every) != plain_every - 1
+        take = min(per, frames - k)
+        sim = Simulation(scene, SPAN, TRAIN_SEED_BASE + 1000 * int(seed) + r, render_size, randomize=randomize)
+        cam = sim.camera
+        idx = np.linspace(0, SPAN - 1, take).round().astype(int)
+        for i in idx:
+            raw, _ = sim.render(int(i))
+            und = cam.undistort(raw)
+            images[k] = cv2.resize(und, (ws, hs), interpolation=cv2.INTER_AREA)
+            full = shaft_edge_segments(sim.robot, sim.q_read[i], sim.E_t[i], cam.K, cam.height, cam.width)
+            flap = sim.scene.flap_mask(int(i))
+            runs = [run for s in full for run in _visible_runs(s, cam, flap, 1.0 / scale * cam.width / full_size[1])]
+            red = to_reduced(np.array(runs).reshape(-1, 4), ws / cam.width, hs / cam.height)
+            red = red[np.hypot(red[:, 2] - red[:, 0], red[:, 3] - red[:, 1]) >= 2.0][:MAX_SEG]
+            segs[k, :len(red)] = red
+            k += 1
+        if progress is not None:
+            progress(k, frames, time.perf_counter() - t0)
+    info = {"frames": frames, "recordings": n_rec, "per_recording": per, "render_size": list(render_size),
+            "scale": scale, "seconds": round(time.perf_counter() - t0, 1)}
+    return images, segs, info
