@@ -12,8 +12,9 @@ predicts the same two outputs at camera rate:
 2. segments are extracted at the reduced scale: probabilistic Hough
    (cv2.HoughLinesP) on {L >= line_threshold} proposes candidates; each is
    refined by a heatmap-weighted total-least-squares line fit to the
-   above-threshold pixels within ``fit_band`` px of it, its extent is that of
-   its supporting pixels, and each endpoint snaps to a junction peak (3x3
+   above-threshold pixels within ``fit_band`` px of it, grown along the fitted
+   line over all such pixels (split at gaps > ``max_gap``: the run holding the
+   candidate's centre) and refitted; its extent is that of its supporting pixels, and each endpoint snaps to a junction peak (3x3
    local maximum of J >= junction_threshold) within ``snap`` px of it along
    the line; near-duplicates (angle < 0.05 rad, offset < 2 px, overlapping)
    keep the best supported one;
@@ -100,6 +101,14 @@ def load_weights(path: str | Path | None = None):
     return net.eval().fused()
 
 
+def _tls(Q: np.ndarray, wq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted total-least-squares line: (centroid, unit direction)."""
+    c = (wq[:, None] * Q).sum(0) / wq.sum()
+    X = Q - c
+    _, evecs = np.linalg.eigh((wq[:, None] * X).T @ X)
+    return c, evecs[:, 1]
+
+
 def _junction_peaks(J: np.ndarray, thr: float) -> np.ndarray:
     """(n, 2) (x, y) of 3x3 local maxima of J >= thr (reduced px)."""
     dil = cv2.dilate(J, np.ones((3, 3), np.uint8))
@@ -146,24 +155,28 @@ def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
         sel = (np.abs(r) <= cfg.fit_band) & (t >= -cfg.max_gap) & (t <= n + cfg.max_gap)
         if sel.sum() < cfg.min_support:
             continue
-        Q, wq = P[sel], w[sel]
-        c = (wq[:, None] * Q).sum(0) / wq.sum()
-        X = Q - c
-        C = (wq[:, None] * X).T @ X
-        evals, evecs = np.linalg.eigh(C)
-        u = evecs[:, 1]
-        tq = X @ u
-        # keep the longest run of support (split at gaps > max_gap)
+        c, u = _tls(P[sel], w[sel])
+        # grow along the fitted line: all pixels in the band, split at gaps,
+        # keep the run holding the candidate's centre (else the longest), refit
+        X = P - c
+        band = np.abs(X @ np.array([-u[1], u[0]])) <= cfg.fit_band
+        tq = X[band] @ u
         order = np.argsort(tq)
         ts = tq[order]
         gaps = np.flatnonzero(np.diff(ts) > cfg.max_gap)
         starts = np.r_[0, gaps + 1]
         ends = np.r_[gaps, len(ts) - 1]
-        k = int(np.argmax(ts[ends] - ts[starts]))
-        t0, t1 = ts[starts[k]], ts[ends[k]]
+        tc = (0.5 * (a + b) - c) @ u
+        hold = np.flatnonzero((ts[starts] <= tc) & (ts[ends] >= tc))
+        k = int(hold[0]) if len(hold) else int(np.argmax(ts[ends] - ts[starts]))
         cnt = ends[k] - starts[k] + 1
-        if t1 - t0 < cfg.min_length or cnt < cfg.min_support:
+        if ts[ends[k]] - ts[starts[k]] < cfg.min_length or cnt < cfg.min_support:
             continue
+        run = np.flatnonzero(band)[order[starts[k]:ends[k] + 1]]
+        Q, wq = P[run], w[run]
+        c, u = _tls(Q, wq)
+        tq = (Q - c) @ u
+        t0, t1 = float(tq.min()), float(tq.max())
         e0, e1 = c + t0 * u, c + t1 * u
         if len(peaks):
             for which in (0, 1):
@@ -180,7 +193,7 @@ def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
                     else:
                         e1 = e_new
         out.append(np.r_[e0, e1])
-        support.append(float(wq[order][starts[k]:ends[k] + 1].sum()))
+        support.append(float(wq.sum()))
     if not out:
         return empty
     S = np.array(out)

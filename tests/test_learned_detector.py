@@ -1,0 +1,136 @@
+"""The learned detector: network, segment extraction, shipped weights, bad files, sold2 adapter."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from graphtrack.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def detector():
+    from graphtrack.detect.learned import LearnedDetector
+
+    torch.set_num_threads(1)
+    return LearnedDetector()
+
+
+def test_forward_shapes():
+    from graphtrack.detect.learned_net import LineNet
+
+    net = LineNet().eval()
+    for h, w in ((135, 240), (33, 47), (8, 8)):
+        with torch.inference_mode():
+            y = net(torch.rand(2, 3, h, w))
+        assert y.shape == (2, 2, h, w)
+    fused = net.fused()
+    x = torch.rand(1, 3, 40, 64)
+    with torch.inference_mode():
+        assert torch.allclose(net(x), fused(x), atol=1e-4)
+    assert sum(p.numel() for p in net.parameters()) < 100_000
+
+
+def test_extract_recovers_synthetic_segment():
+    import cv2
+
+    from graphtrack.detect.learned import extract_segments
+
+    L = np.zeros((135, 240), np.float32)
+    a, b = (30.0, 20.0), (200.0, 110.0)
+    cv2.line(L, (30, 20), (200, 110), 1.0, 2, cv2.LINE_AA)
+    J = np.zeros_like(L)
+    J[20, 30] = J[110, 200] = 1.0
+    seg, support = extract_segments(L, J)
+    assert len(seg) >= 1
+    s = seg[0]
+    ends = sorted([tuple(s[:2]), tuple(s[2:])])
+    assert np.hypot(*np.subtract(ends[0], a)) < 1.5
+    assert np.hypot(*np.subtract(ends[1], b)) < 1.5
+
+
+def test_shipped_weights_detect_both_edges_on_unseen_frame(detector):
+    from graphtrack.geometry.lines import line_difference
+    from graphtrack.robot.features import base_features, shaft_lines
+    from graphtrack.sim.simulate import Simulation
+
+    sim = Simulation("structured", 10, seed=4242, size=(540, 960))
+    raw, _ = sim.render(5)
+    und = sim.camera.undistort(raw)
+    det = detector.detect(und)
+    assert det.heatmap.shape == und.shape[:2] and det.heatmap.dtype == np.float32
+    assert 0.0 <= det.heatmap.min() and det.heatmap.max() <= 1.0
+    rho, th, ok = shaft_lines(base_features(sim.robot, sim.q_read[5]).transformed(sim.E_t[5]), sim.camera.K)
+    assert ok
+    assert len(det.shaft_lines) == 2
+    for r, t in det.shaft_lines:
+        dr, dt = line_difference(r, t, rho, th)
+        j = int(np.argmin(np.abs(dt) + np.abs(dr) / 100))
+        assert abs(dr[j]) < 5.0 and abs(dt[j]) < 0.03
+    # with the true lines as prediction, each edge is labelled by its own line
+    det2 = detector.detect(und, np.stack([rho, th], 1))
+    assert sorted(det2.edge_ids.tolist()) == [0, 1]
+
+
+@pytest.mark.parametrize("kind", ["black", "white", "tiny", "grey2d"])
+def test_degenerate_frames(detector, kind):
+    img = {"black": np.zeros((540, 960, 3), np.uint8), "white": np.full((540, 960, 3), 255, np.uint8),
+           "tiny": np.full((5, 7, 3), 90, np.uint8), "grey2d": np.zeros((20, 30), np.uint8)}[kind]
+    det = detector.detect(img)
+    assert len(det.shaft_lines) == 0 and len(det.segments) == 0
+
+
+def test_bad_weight_files(tmp_path):
+    from graphtrack.detect.learned import load_weights
+    from graphtrack.detect.learned_net import LineNet
+
+    with pytest.raises(InputError, match="not found"):
+        load_weights(tmp_path / "missing.pt")
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a torch file")
+    with pytest.raises(InputError, match="junk.pt"):
+        load_weights(junk)
+    notsd = tmp_path / "list.pt"
+    torch.save([1, 2, 3], notsd)
+    with pytest.raises(InputError, match="not a state dict"):
+        load_weights(notsd)
+    wrong = tmp_path / "wrong.pt"
+    torch.save(torch.nn.Linear(3, 4).state_dict(), wrong)
+    with pytest.raises(InputError, match="architecture"):
+        load_weights(wrong)
+    other_width = tmp_path / "w8.pt"
+    torch.save(LineNet(width=8).state_dict(), other_width)  # plain state dict, default width 16 expected
+    with pytest.raises(InputError, match="architecture"):
+        load_weights(other_width)
+
+
+def test_cli_bad_weights_exit_2(tmp_path, capsys):
+    from graphtrack.detect import make_detector
+
+    with pytest.raises(InputError, match="missing.pt"):
+        make_detector("learned", weights=str(tmp_path / "missing.pt"))
+
+
+def test_sold2_adapter_random_weights(tmp_path):
+    pytest.importorskip("kornia")
+    from kornia.feature import SOLD2_detector
+
+    from graphtrack.detect import make_detector
+    from graphtrack.detect.sold2 import Sold2Detector
+
+    torch.manual_seed(0)
+    ckpt = tmp_path / "sold2.pt"
+    torch.save(SOLD2_detector(pretrained=False).model.state_dict(), ckpt)
+    det = make_detector("sold2", weights=str(ckpt))
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 255, (60, 84, 3), dtype=np.uint8)
+    d = det.detect(img)
+    assert d.heatmap.shape == (60, 84) and 0 <= d.heatmap.min() and d.heatmap.max() <= 1
+    assert d.segments.ndim == 2 and d.segments.shape[1] == 4
+    assert len(det.detect(np.zeros((60, 84, 3), np.uint8)).shaft_lines) == 0
+    with pytest.raises(InputError):
+        Sold2Detector()
+    bad = tmp_path / "bad.pt"
+    torch.save({"a": torch.zeros(3)}, bad)
+    with pytest.raises(InputError, match="architecture"):
+        Sold2Detector(weights=bad)

@@ -1,0 +1,53 @@
+"""``graphtrack train`` with a tiny config, and the ground-truth labels it trains on."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def test_labels_lie_on_true_limb_lines():
+    from graphtrack.geometry.lines import line_difference, line_through
+    from graphtrack.robot.features import base_features, shaft_lines
+    from graphtrack.sim.simulate import Simulation
+    from graphtrack.detect.training.labels import shaft_edge_segments
+
+    sim = Simulation("tissue", 5, seed=11, size=(270, 480))
+    cam = sim.camera
+    seg = shaft_edge_segments(sim.robot, sim.q_read[2], sim.E_t[2], cam.K, cam.height, cam.width)
+    assert len(seg) == 2
+    rho, th, _ = shaft_lines(base_features(sim.robot, sim.q_read[2]).transformed(sim.E_t[2]), cam.K)
+    r, t = line_through(seg[:, :2], seg[:, 2:])
+    for i in range(2):
+        dr, dt = line_difference(r[i], t[i], rho, th)
+        assert np.min(np.abs(dr) + np.abs(dt)) < 1e-6
+    assert np.all(seg[:, 0::2] >= -0.5 - 1e-9) and np.all(seg[:, 0::2] <= cam.width - 0.5 + 1e-9)
+
+
+def test_target_maps():
+    from graphtrack.detect.training.labels import target_maps
+
+    seg = np.full((1, 2, 4), np.nan, np.float32)
+    seg[0, 0] = [5, 5, 30, 5]
+    y = target_maps(seg, 20, 40)
+    assert y.shape == (1, 2, 20, 40)
+    assert float(y[0, 0, 5, 15]) == 1.0 and float(y[0, 0, 15, 15]) < 1e-6
+    assert float(y[0, 1, 5, 5]) == 1.0 and float(y[0, 1, 5, 15]) < 1e-6
+
+
+def test_train_command_tiny(tmp_path):
+    from graphtrack.cli import main
+    from graphtrack.detect.learned import LearnedDetector
+
+    torch.set_num_threads(1)
+    out = tmp_path / "w.pt"
+    assert main(["train", "--out", str(out), "--frames", "4", "--epochs", "1", "--batch", "4", "--quiet"]) == 0
+    det = LearnedDetector(out)
+    d = det.detect(np.random.default_rng(0).integers(0, 255, (540, 960, 3), dtype=np.uint8))
+    assert d.heatmap.shape == (540, 960)
+
+
+def test_train_command_bad_args(tmp_path, capsys):
+    from graphtrack.cli import main
+
+    assert main(["train", "--out", str(tmp_path / "no" / "w.pt"), "--frames", "2"]) == 2
+    assert main(["train", "--out", str(tmp_path / "w.pt"), "--frames", "0"]) == 2
