@@ -228,28 +228,28 @@ def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarr
     D = len(detected)
     if D == 0 or M == 0:
         return np.zeros(n)
-    # dt[n, k, j]: truncated distance of detected k to projected j; column M = unmatched
-    dt = np.full((n, D, M + 1), gate)
-    dist = np.hypot(projected[:, None, :, 0] - detected[None, :, None, 0],
-                    projected[:, None, :, 1] - detected[None, :, None, 1])  # (N, D, M)
-    ok = np.isfinite(dist) & visible[:, None, :]
-    dt[:, :, :M] = np.where(ok, np.minimum(dist, gate), gate)
+    dx = projected[:, None, :, 0] - detected[None, :, None, 0]
+    dy = projected[:, None, :, 1] - detected[None, :, None, 1]
+    dist = np.fmin(np.sqrt(dx * dx + dy * dy), gate)  # (N, D, M); fmin: NaN -> gate
+    dist = np.where(visible[:, None, :], dist, gate)
     count = 1
     for i in range(min(M, D)):
         count *= max(M, D) - i
     if count <= MAX_ENUMERATED:
         a = _assignments(M, D)  # (A, D) model index per detected marker, -1 = unmatched
-        a = np.where(a < 0, M, a)
-        cost = dt[:, 0, a[:, 0]]  # (N, A)
+        if D > M:  # column M of the table = unmatched (cost gate)
+            dist = np.concatenate([dist, np.full((n, D, 1), gate)], axis=2)
+            a = np.where(a < 0, M, a)
+        cost = dist[:, 0, a[:, 0]]  # (N, A); a short loop over D beats a small-axis sum
         for k in range(1, D):
-            cost += dt[:, k, a[:, k]]
+            cost += dist[:, k, a[:, k]]
         total = cost.min(axis=1)
     else:
         from scipy.optimize import linear_sum_assignment
 
         i0 = 0 if estimate_index is None else estimate_index
-        r, c = linear_sum_assignment(dt[i0, :, :M])
-        total = dt[:, r, c].sum(axis=1) + gate * (D - len(r))
+        r, c = linear_sum_assignment(dist[i0])
+        total = dist[:, r, c].sum(axis=1) + gate * (D - len(r))
     return -gamma * total
 
 
