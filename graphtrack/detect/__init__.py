@@ -28,6 +28,7 @@ from graphtrack.detect.ransac import RansacConfig, best_line, fit_line_tls, sequ
 DETECTORS: dict[str, str] = {
     "canny": "graphtrack.detect.canny:CannyDetector",
     "learned": "graphtrack.detect.learned:LearnedDetector",
+    "sold2": "graphtrack.detect.sold2:Sold2Detector",
 }
 
 

@@ -10,7 +10,7 @@ Augmentation (per sample, on the fly, seeded): horizontal and vertical flips
 low light), gamma 0.7-1.8, per-channel gain 0.8-1.2, contrast 0.6-1.2 about
 the mean, Gaussian noise sigma 0-0.05, 3x3 box blur 1 in 4.
 
-Optimiser: AdamW (lr 3e-3, weight decay 1e-4), cosine decay to 1e-5, batch 16.
+Optimiser: AdamW (lr 3e-3, weight decay 1e-4), cosine decay to 1e-5, batch 32 (``graphtrack train``'s default).
 Everything is seeded from ``seed`` (torch, the shuffling and augmentation rng);
 on the CPU with one thread the same command gives the same weights.
 """
