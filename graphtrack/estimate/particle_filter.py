@@ -61,7 +61,7 @@ from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
 from graphtrack.geometry.se3 import average_rotations
-from graphtrack.robot.features import base_features
+from graphtrack.robot.kinematics import link_transforms
 
 STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
 
@@ -219,11 +219,22 @@ class ParticleFilter:
         return out
 
     def _frame_geometry_uncached(self, q: np.ndarray):
-        f = base_features(self.robot, q)
+        # only the links carrying the shaft and the markers (cheaper than base_features)
+        L = link_transforms(self.robot, q)
+        sf = self.robot.shaft_features[0]
+        Ts = L[sf.link]
+        p0 = Ts[:3, :3] @ np.asarray(sf.position, float) + Ts[:3, 3]
+        d = Ts[:3, :3] @ np.asarray(sf.direction, float)
+        d = d / np.linalg.norm(d)
+        r = float(sf.radius)
+        feats = self.robot.point_features
+        if feats:
+            Tp = L[[p.link for p in feats]]
+            pos = np.array([p.position for p in feats], float)
+            pts = np.einsum("kij,kj->ki", Tp[:, :3, :3], pos) + Tp[:, :3, 3]
+        else:
+            pts = np.zeros((0, 3))
         R0, t0 = self.E0[:3, :3], self.E0[:3, 3]
-        p0, d = f.shaft_p0[0], f.shaft_d[0]
-        r = float(f.shaft_r[0])
-        pts = f.points.reshape(-1, 3)
         rel = pts - p0
         radial = rel - (rel @ d)[:, None] * d
         dist = np.linalg.norm(radial, axis=1)
