@@ -1,0 +1,136 @@
+"""Run every benchmark on ONE core and rewrite benchmarks/RESULTS.md.
+
+    python benchmarks/run_all.py            # all of them (tens of minutes)
+    python benchmarks/run_all.py sim pf     # a subset; other sections keep their last figures
+
+Each ``benchmarks/bench_<name>.py`` exposes ``run(results: dict)`` filling
+``results[<name>]`` with figures. This runner pins the process to one CPU core
+(and one thread for numpy/OpenCV/torch), keeps the figures of every section in
+``benchmarks/results.json`` and renders RESULTS.md: the machine, each target
+next to its measured value, then every section's figures and tables.
+Timings are medians over repeated runs after warm-up (see each benchmark).
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import datetime  # noqa: E402
+import importlib  # noqa: E402
+import json  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+SECTIONS = ("sim", "detect", "pf", "smoother", "track", "accuracy")
+
+#: (section, key, what, target, ">=" | "<=", unit). Keys missing from the results show as "not measured".
+TARGETS = [
+    ("sim", "structured_fps", "simulator, 540x960 structured, render + write", 10, ">=", "frames/s"),
+    ("sim", "tissue_fps", "simulator, 540x960 tissue, render + write", 10, ">=", "frames/s"),
+    ("detect", "learned_fps", "learned detector at 540x960 incl. segment extraction", 30, ">=", "frames/s"),
+    ("pf", "step_ms_1000", "PF predict+update, 1000 particles, ~500 px, 4 markers", 3, "<=", "ms"),
+    ("smoother", "update_ms_median", "smoother online update, 1 s lag, ~500 px + markers", 3, "<=", "ms"),
+    ("smoother", "batch_1800_s", "batch refinement of 1800 frames", 20, "<=", "s"),
+    ("track", "fps_540_canny_smoother", "track 540x960, canny + smoother", 60, ">=", "frames/s"),
+    ("track", "fps_540_learned_smoother", "track 540x960, learned + smoother", 30, ">=", "frames/s"),
+    ("track", "fps_1080_canny_smoother", "track 1080x1920, canny + smoother", 30, ">=", "frames/s"),
+    ("track", "fps_1080_canny_pf", "track 1080x1920, canny + particle filter (1000)", 30, ">=", "frames/s"),
+    ("track", "peak_rss_mb_1080_1800", "peak RSS tracking 1800 frames at 1080x1920", 1024, "<=", "MB"),
+]
+
+
+def pin_one_core() -> str:
+    try:
+        cpu = sorted(os.sched_getaffinity(0))[0]
+        os.sched_setaffinity(0, {cpu})
+        return f"pinned to CPU {cpu}"
+    except (AttributeError, OSError):
+        return "not pinned (no sched_setaffinity)"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}; {os.cpu_count()} logical CPUs; Python {platform.python_version()}; {platform.system()}"
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+    return str(v)
+
+
+def render(results: dict) -> str:
+    lines = ["# Benchmark results", "",
+             f"Written by `python benchmarks/run_all.py` on {results.get('_date', '?')}.", "",
+             f"Machine: {results.get('_machine', '?')}. Every figure is measured on ONE core "
+             f"({results.get('_pinning', '?')}, one thread for numpy/OpenCV/torch); timings are medians "
+             "over repeated runs after warm-up.", "",
+             "## Targets", "", "| what | target | measured | met |", "|---|---|---|---|"]
+    for section, key, what, target, op, unit in TARGETS:
+        v = results.get(section, {}).get(key)
+        if v is None:
+            lines.append(f"| {what} | {op} {target} {unit} | not measured | – |")
+            continue
+        ok = v >= target if op == ">=" else v <= target
+        lines.append(f"| {what} | {op} {target} {unit} | {_fmt(v)} {unit} | {'yes' if ok else '**no**'} |")
+    for section in SECTIONS:
+        res = results.get(section)
+        if not res:
+            continue
+        lines += ["", f"## {section}", ""]
+        tables = res.get("tables", {})
+        scalars = {k: v for k, v in res.items() if k not in ("tables", "notes", "plots")}
+        if scalars:
+            lines += ["| figure | value |", "|---|---|"]
+            lines += [f"| {k} | {_fmt(v)} |" for k, v in scalars.items()]
+        for title, md in tables.items():
+            lines += ["", f"### {title}", "", md.rstrip()]
+        for plot in res.get("plots", []):
+            lines += ["", f"![{plot}]({plot})"]
+        for note in res.get("notes", []):
+            lines += ["", note]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    wanted = argv or list(SECTIONS)
+    store = HERE / "results.json"
+    results = json.loads(store.read_text()) if store.exists() else {}
+    results["_pinning"] = pin_one_core()
+    results["_machine"] = machine()
+    results["_date"] = datetime.date.today().isoformat()
+    sys.path.insert(0, str(HERE))
+    for name in wanted:
+        try:
+            module = importlib.import_module(f"bench_{name}")
+        except ModuleNotFoundError:
+            print(f"no benchmark bench_{name}.py, skipped")
+            continue
+        t = time.perf_counter()
+        print(f"== {name}", flush=True)
+        fresh: dict = {}
+        module.run(fresh)
+        results.update(fresh)
+        print(f"   {name}: {time.perf_counter() - t:.0f} s", flush=True)
+        store.write_text(json.dumps(results, indent=1, default=float))  # keep what is done
+        (HERE / "RESULTS.md").write_text(render(results))
+    (HERE / "RESULTS.md").write_text(render(results))
+    print(f"wrote {HERE / 'RESULTS.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
