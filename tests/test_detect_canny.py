@@ -202,3 +202,22 @@ def test_speed_sanity():
         d.detect(img)
         t.append(time.perf_counter() - t0)
     assert min(t) < 0.2   # a few ms when the machine is idle; generous for loaded CI
+
+
+def test_widened_gates_per_call():
+    from graphtrack.detect.association import AssociationConfig
+
+    img = shaft_scene()
+    # predictions turned by 0.2 rad about each edge's midpoint: outside the default 0.15 rad gate
+    far = []
+    for a, b in (EDGE_A, EDGE_B):
+        m, d = (a + b) / 2, (b - a) / 2
+        c, s = np.cos(0.2), np.sin(0.2)
+        d = np.array([c * d[0] - s * d[1], s * d[0] + c * d[1]])
+        far.append(line_through(m - d, m + d))
+    far = np.array(far, float).reshape(2, 2)
+    d = CannyDetector()
+    assert len(d.detect(img, far).shaft_lines) == 0
+    wide = d.detect(img, far, association=AssociationConfig(max_angle=0.3))
+    assert wide.edge_ids.tolist() == [0, 1]
+    assert_lines_close(wide.shaft_lines, truth_lines())

@@ -18,20 +18,23 @@ resolution undistorted pixels):
    gradient angle phi = atan2(g_y, g_x) mod pi votes only in the sectors that
    come within the tolerance of phi (a line's normal is its pixels' gradient
    direction). This keeps textured tissue from reaching 100 random votes. The
-   peaks, strongest first, are clustered: a line within 5 px (rho measured
-   from the image centre) and 0.09 rad of a stronger one is a near-duplicate
-   and dropped; at most ``max_lines`` are kept.
+   ``max_lines`` strongest peaks go on to refinement. (The method's clustering
+   of near-duplicates at 5 px / 0.09 rad is applied to the refined lines, in
+   step 5: on raw peaks it merges a shaft edge with a specular streak 10 px
+   inside it, whose peaks are neighbouring bins; ``cluster_peaks`` restores it
+   there, with rho measured from the image centre.)
 4. Refinement (``refine``; see :meth:`CannyDetector.fit`): the Hough bins are
    5 px / 0.09 rad wide, so each line is re-estimated from the edge pixels
    whose gradient direction is within ``orientation_tol`` of its normal: a
-   fine local Hough (0.01 rad, 1 px) around the peak, then total least squares
-   on the pixels with |R(p | theta, rho)| <= 2 band, then <= band
-   (band = max(refine_band, 1/s) px).
+   fine local Hough (0.01 rad, 1 px, +-fine_theta) around the peak, then total
+   least squares on the pixels with |R(p | theta, rho)| <= 2 band, then
+   <= band (band = max(refine_band, 1/s) px).
 5. Candidate segment of each line: its final inlier pixels, projected on the
    line direction (-sin theta, cos theta), split at gaps > max_gap px; the
    longest run gives the endpoints (x1, y1, x2, y2). Runs shorter than
-   min_length px are dropped; the survivors are clustered again (5 px at the
-   weaker segment's midpoint, 0.09 rad), longer first.
+   min_length px are dropped; the survivors are clustered (the method's
+   near-duplicates: within 5 px, measured at the weaker segment's midpoint,
+   and 0.09 rad of a longer one).
 6. Association with the shaft's two edges (:mod:`graphtrack.detect.association`,
    gated by ``predicted_lines`` when given) and colour markers
    (:mod:`graphtrack.detect.markers`).
@@ -300,12 +303,16 @@ class CannyDetector:
         if len(u) == 0:
             return rho, theta
         nb = int(2 * R) + 1
-        o = u[:, None] * np.cos(deltas) + v[:, None] * np.sin(deltas)     # (n, T)
-        b = np.floor(o + R).astype(np.int64)
-        ok = (b >= 0) & (b < nb)
         T = len(deltas)
-        flat = (lj[:, None] * T + np.arange(T)) * nb + b
-        acc = np.bincount(flat[ok], minlength=N * T * nb).reshape(N, T, nb).astype(float)
+        # offset bin b = floor(o + R) in [0, nb); stored as b + 1 with the two
+        # outer bins (b < 0, b >= nb) catching what falls outside
+        o = (u.astype(np.float32)[:, None] * np.cos(deltas).astype(np.float32)
+             + v.astype(np.float32)[:, None] * np.sin(deltas).astype(np.float32))
+        o += np.float32(R + 1.0)
+        np.clip(o, 0.0, nb + 1.0, out=o)
+        b = o.astype(np.int32)
+        b += ((lj.astype(np.int32) * T)[:, None] + np.arange(T, dtype=np.int32)) * (nb + 2)
+        acc = np.bincount(b.ravel(), minlength=N * T * (nb + 2)).reshape(N, T, nb + 2)[:, :, 1:-1]
         acc2 = acc[:, :, :-1] + acc[:, :, 1:]                  # 2-px windows, centre at bin edge
         best = acc2.reshape(N, -1).argmax(1)
         k, bo = np.divmod(best, nb - 1)
@@ -347,7 +354,11 @@ class CannyDetector:
         return lid, np.arange(total) + off
 
     # -- the detector ---------------------------------------------------------------
-    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None) -> Detection:
+    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None,
+               association: AssociationConfig | None = None) -> Detection:
+        """Detect on an undistorted BGR (or grey) uint8 frame; ``predicted_lines``
+        (2, 2) gate the association; ``association`` overrides the configured
+        gates for this call (e.g. widened after a tracking loss)."""
         t_start = time.perf_counter()
         cfg = self.config
         gray = _gray(image)
@@ -397,7 +408,7 @@ class CannyDetector:
                 keep = _nms(near, cfg.max_lines)
                 lines, segs = lines[keep], segs[keep]
             det.segments = segs
-            a = associate(lines, segs, predicted_lines, cfg.association)
+            a = associate(lines, segs, predicted_lines, association or cfg.association)
             det.shaft_lines, det.shaft_segments, det.edge_ids = a.lines, a.segments, a.edge_ids
         det.ms = 1e3 * (time.perf_counter() - t_start)
         return det
