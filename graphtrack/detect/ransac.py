@@ -114,7 +114,10 @@ def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
         rho = rho + np.cos(theta) * c[:, 0, 0] + np.sin(theta) * c[:, 0, 1]
         # a sample with all pixels identical defines no line
         spread = (x * x + y * y).sum(1)
-        inl = _residuals(remaining, rho, theta) <= cfg.threshold   # (T, P)
+        r32 = remaining.astype(np.float32)   # centred coordinates: float32 is ample here
+        inl = np.abs(np.cos(theta).astype(np.float32)[:, None] * r32[None, :, 0]
+                     + np.sin(theta).astype(np.float32)[:, None] * r32[None, :, 1]
+                     - rho.astype(np.float32)[:, None]) <= cfg.threshold   # (T, P)
         score = np.where(spread > 1e-12, inl.sum(1), -1)
         best = int(np.argmax(score))
         if score[best] < cfg.min_inliers:
