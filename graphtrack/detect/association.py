@@ -27,8 +27,10 @@ since an error in E shifts both limbs alike while a specular streak inside
 the shaft or a tissue fold beside it changes the apparent width; with no
 gated pair, the best single gated candidate is kept. Otherwise (one predicted
 edge, or pair_weight = 0) it is the Hungarian assignment (scipy's
-linear_sum_assignment) with ungated pairs at a prohibitive cost. Extra lines (tissue folds, jaws, specular streaks)
-outside the gates are ignored; an edge with no gated candidate (hidden) is
+linear_sum_assignment) with ungated pairs at a prohibitive cost.
+
+Extra lines (tissue folds, jaws, specular streaks) outside the gates are
+ignored; an edge with no gated candidate (hidden) is
 simply absent (k = 1 or 0). Rows of ``predicted_lines`` that are not finite
 are skipped. The midpoint offset is used rather than d_rho because rho is
 measured at the image origin, where a small angle error becomes a large
