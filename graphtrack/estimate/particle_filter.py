@@ -56,14 +56,13 @@ from __future__ import annotations
 import numpy as np
 
 from graphtrack.estimate import observation_models as om
-from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
 from graphtrack.geometry.se3 import average_rotations
 from graphtrack.robot.kinematics import link_transforms
 
-STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
 
 
 def rodrigues(w: np.ndarray) -> np.ndarray:
@@ -142,6 +141,7 @@ class ParticleFilter:
 
     name = "pf"
     uses_observations = True
+    extra_columns = STD_COLUMNS + ("ess",)
 
     def __init__(self, ctx: TrackingContext, observation: str = "line-intensities",
                  particles: int = 1000, seed: int = 0, markers: bool = True, *,
