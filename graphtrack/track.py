@@ -33,13 +33,20 @@ class TrackOptions:
 
     estimator: str = "kinematics"
     observation: str = "line-intensities"
-    detector: str = "canny"
+    detector: str = "learned"
     markers: bool = True
     estimator_options: dict = field(default_factory=dict)
     detector_options: dict = field(default_factory=dict)
     alpha: float = 10.0
     beta: float = 0.9
     seed: int = 0
+    detect_scale: float | None = None  # None: auto, detect at most 960 px wide
+
+
+def auto_detect_scale(width: int, max_width: int = 960) -> float:
+    """Detection runs on the undistorted image scaled to at most ``max_width`` px wide
+    (1080x1920 recordings are detected at half size; smaller ones at full size)."""
+    return 1.0 if width <= max_width else max_width / float(width)
 
 
 class Pipeline:
@@ -66,23 +73,26 @@ class Pipeline:
             self.detector = make_detector(options.detector, **options.detector_options)
         self.last_E = ctx.handeye.copy()
         self.rng = np.random.default_rng(options.seed)
+        self.scale = options.detect_scale or auto_detect_scale(ctx.camera.width)
+        self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
 
     def predicted_lines(self, frame: Frame) -> np.ndarray | None:
-        """Shaft edges (2, 2) (rho, theta) from the last estimate and this frame's readings."""
+        """Shaft edges (2, 2) (rho, theta) from the last estimate and this frame's
+        readings, in the undistorted pixels of the (possibly scaled) detection image."""
         if not self.ctx.robot.shaft_features:
             return None
         cam = base_features(self.ctx.robot, frame.q).transformed(self.last_E)
-        rho, theta, valid = shaft_lines(cam, self.ctx.camera.K)
+        rho, theta, valid = shaft_lines(cam, self.detect_camera.K)
         return np.stack([rho, theta], -1) if bool(valid) else None
 
     def step(self, frame: Frame):
         ms = {}
         detection = observation = None
         if self.needs_images:
-            from graphtrack.detect.observe import make_observation
+            from graphtrack.detect.observe import make_observation, scale_detection, scale_observation
 
             t = time.perf_counter()
-            und = self.ctx.camera.undistort(frame.image)
+            und = self.ctx.camera.undistort(frame.image, self.scale)
             ms["undistort"] = 1e3 * (time.perf_counter() - t)
             t = time.perf_counter()
             detection = self.detector.detect(und, self.predicted_lines(frame))
@@ -91,6 +101,8 @@ class Pipeline:
             observation = make_observation(detection, self.options.observation, alpha=self.options.alpha,
                                            beta=self.options.beta, use_markers=self.options.markers,
                                            rng=self.rng)
+            observation = scale_observation(observation, 1.0 / self.scale)  # to full-size pixels
+            detection = scale_detection(detection, 1.0 / self.scale)
             ms["observe"] = 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
         estimate = self.estimator.step(frame, observation)

@@ -97,3 +97,22 @@ def test_draw_detection(scene):
     out2 = draw_detection(img[:, :, 0], det, make_observation(det, "line-intensities-polar"))
     assert out2.shape == img.shape
     draw_detection(np.zeros((8, 8, 3), np.uint8), Detection())
+
+
+def test_scale_observation_maps_lines_and_points_consistently():
+    from graphtrack.detect.base import Observation
+    from graphtrack.detect.observe import scale_observation
+    from graphtrack.geometry.lines import line_through, pixel_residual
+
+    rng = np.random.default_rng(0)
+    a, b = np.array([12.3, 40.1]), np.array([301.7, 222.9])
+    rho, theta = line_through(a, b)
+    t = rng.uniform(0, 1, (20, 1))
+    pts = a + t * (b - a)
+    obs = Observation("line-intensities", lines=np.array([[rho, theta]]), pixels=[pts], markers=pts[:3])
+    big = scale_observation(obs, 2.0)
+    # points on the line stay on the scaled line; a scaled-image pixel (x+0.5)*2-0.5
+    assert np.abs(pixel_residual(big.pixels[0], big.lines[0, 0], big.lines[0, 1])).max() < 1e-9
+    np.testing.assert_allclose(big.markers, (pts[:3] + 0.5) * 2 - 0.5)
+    back = scale_observation(big, 0.5)
+    np.testing.assert_allclose(back.lines, obs.lines, atol=1e-12)

@@ -86,3 +86,17 @@ def test_bad_calibration_names_file_and_key(tmp_path, text, needle):
 def test_missing_calibration_file(tmp_path):
     with pytest.raises(InputError, match="file not found"):
         load_calibration(tmp_path / "nope.yaml")
+
+
+def test_scaled_undistort_samples_full_raw_image():
+    """undistort(img, 0.5) = the undistorted image of camera.scaled(0.5), from the full raw image."""
+    cam = camera()
+    P = np.array([[0.03, -0.015, 0.1]])
+    raw = cam.project_raw(P)[0]
+    img = np.zeros((540, 960), np.uint8)
+    cv2.circle(img, (int(round(raw[0] * 16)), int(round(raw[1] * 16))), 4 * 16, 255, -1, shift=4)
+    small = cam.undistort(img, 0.5)
+    assert small.shape == (270, 480)
+    m = cv2.moments(small.astype(np.float32))
+    centre = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+    assert np.linalg.norm(centre - cam.scaled(0.5).project_undistorted(P)[0]) < 0.3

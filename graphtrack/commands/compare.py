@@ -70,7 +70,7 @@ def add_parser(sub):
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes (default 1)")
     p.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="run cells as Ray tasks: 'local' (start one here), 'auto' or a cluster address")
-    p.add_argument("--detector", choices=DETECTORS, default="canny")
+    p.add_argument("--detector", choices=DETECTORS, default="learned")
     p.add_argument("--weights", metavar="FILE", help="weights for --detector learned/sold2")
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     p.add_argument("--particles", type=int, default=1000, help="particle filter: number of particles")

@@ -34,7 +34,7 @@ def _num(x) -> str:
     return repr(round(x, 4)) if np.isfinite(x) else "nan"
 
 
-def detect_recording(path, out, detector: str = "canny", weights: str | None = None, video: bool = False,
+def detect_recording(path, out, detector: str = "learned", weights: str | None = None, video: bool = False,
                      max_frames: int | None = None, alpha: float = 10.0, beta: float = 0.9,
                      quiet: bool = False) -> dict:
     """Detect on every frame of a recording; write detections.csv (and detections.mp4)."""
@@ -137,7 +137,7 @@ def add_parser(sub):
                                    "write detections.csv (and --video detections.mp4).")
     p.add_argument("sequence", metavar="SEQ", help="recording folder")
     p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--detector", choices=DETECTORS, default="canny")
+    p.add_argument("--detector", choices=DETECTORS, default="learned")
     p.add_argument("--weights", metavar="FILE", help="weights for --detector learned/sold2")
     p.add_argument("--video", action="store_true", help="also write detections.mp4")
     p.add_argument("--max-frames", type=int, default=None, metavar="N")

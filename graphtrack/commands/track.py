@@ -16,7 +16,10 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="k
     p.add_argument("--estimator", choices=estimators, default=default_estimator)
     p.add_argument("--observation", choices=OBSERVATION_MODELS, default="line-intensities",
                    help="observation model of the method (default: line-intensities)")
-    p.add_argument("--detector", choices=DETECTORS, default="canny")
+    p.add_argument("--detector", choices=DETECTORS, default="learned",
+                   help="shaft/marker detector (default: learned, the shipped CPU line network)")
+    p.add_argument("--detect-scale", type=float, default=None, metavar="S",
+                   help="detect on the undistorted image scaled by S (default: auto, at most 960 px wide)")
     p.add_argument("--weights", metavar="FILE", help="weights for --detector learned/sold2")
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     p.add_argument("--particles", type=int, default=1000, help="particle filter: number of particles")
@@ -39,6 +42,9 @@ def options_from_args(args):
         raise InputError("--particles must be positive")
     if args.lag <= 0:
         raise InputError("--lag must be positive")
+    detect_scale = getattr(args, "detect_scale", None)
+    if detect_scale is not None and not 0.05 <= detect_scale <= 1.0:
+        raise InputError("--detect-scale must be in [0.05, 1]")
     est_opts = {}
     if args.estimator == "pf":
         est_opts = {"particles": args.particles, "seed": args.seed}
@@ -47,7 +53,7 @@ def options_from_args(args):
     det_opts = {"weights": args.weights} if args.weights else {}
     return TrackOptions(estimator=args.estimator, observation=args.observation, detector=args.detector,
                         markers=not args.no_markers, estimator_options=est_opts, detector_options=det_opts,
-                        alpha=args.alpha, beta=args.beta, seed=args.seed)
+                        alpha=args.alpha, beta=args.beta, seed=args.seed, detect_scale=detect_scale)
 
 
 def run(args) -> int:

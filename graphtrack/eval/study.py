@@ -50,7 +50,7 @@ CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smooth
 class StudyOptions:
     estimators: list[str] = field(default_factory=lambda: ["kinematics", "pf", "smoother", "batch"])
     observations: list[str] = field(default_factory=lambda: ["line-intensities"])
-    detector: str = "canny"
+    detector: str = "learned"
     weights: str | None = None
     max_frames: int | None = None
     particles: int = 1000

@@ -32,7 +32,7 @@ class Camera:
     dist: np.ndarray
     height: int
     width: int
-    _maps: tuple | None = field(default=None, repr=False, compare=False)
+    _maps: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def fx(self) -> float:
@@ -99,16 +99,22 @@ class Camera:
         return out.reshape(-1, 2)
 
     # -- images ---------------------------------------------------------------------
-    def undistort_maps(self) -> tuple[np.ndarray, np.ndarray]:
-        """Remap tables raw -> undistorted, computed once per camera (fixed-point maps)."""
-        if self._maps is None:
-            self._maps = cv2.initUndistortRectifyMap(
-                self.K, self.dist, None, self.K, (self.width, self.height), cv2.CV_16SC2)
-        return self._maps
+    def undistort_maps(self, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Remap tables raw -> undistorted, computed once per camera and scale.
 
-    def undistort(self, image: np.ndarray) -> np.ndarray:
-        """Raw image -> undistorted image with the same K and size (bilinear)."""
-        m1, m2 = self.undistort_maps()
+        With ``scale`` s != 1 the output is the undistorted image of the camera
+        ``self.scaled(s)`` sampled straight from the FULL-size raw image: one
+        remap does the resize and the undistortion, at the cost of the output size.
+        """
+        if scale not in self._maps:
+            out = self if scale == 1.0 else self.scaled(scale)
+            self._maps[scale] = cv2.initUndistortRectifyMap(
+                self.K, self.dist, None, out.K, (out.width, out.height), cv2.CV_16SC2)
+        return self._maps[scale]
+
+    def undistort(self, image: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """Raw image -> undistorted image (bilinear), of ``self.scaled(scale)``'s size and K."""
+        m1, m2 = self.undistort_maps(scale)
         return cv2.remap(image, m1, m2, cv2.INTER_LINEAR)
 
     def scaled(self, s: float) -> "Camera":
