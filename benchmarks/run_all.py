@@ -27,6 +27,7 @@ from pathlib import Path  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 SECTIONS = ("sim", "detect", "pf", "smoother", "track", "accuracy")
+RENDERED = SECTIONS + ("scaling",)
 
 #: (section, key, what, target, ">=" | "<=", unit). Keys missing from the results show as "not measured".
 TARGETS = [
@@ -95,7 +96,7 @@ def render(results: dict) -> str:
             continue
         ok = v >= target if op == ">=" else v <= target
         lines.append(f"| {what} | {op} {target} {unit} | {_fmt(v)} {unit} | {'yes' if ok else '**no**'} |")
-    for section in SECTIONS:
+    for section in RENDERED:
         res = results.get(section)
         if not res:
             continue
@@ -112,6 +113,40 @@ def render(results: dict) -> str:
         for note in res.get("notes", []):
             lines += ["", note]
     return "\n".join(lines) + "\n"
+
+
+def plot_scaling(results: dict) -> str | None:
+    """scaling.png: PF step time vs particle count, smoother update vs lag (from their sections)."""
+    import re
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    pf = sorted((int(m.group(1)), v) for k, v in results.get("pf", {}).items()
+                if (m := re.fullmatch(r"step_ms_(\d+)", k)))
+    sm = sorted((float(m.group(1)), v) for k, v in results.get("smoother", {}).items()
+                if (m := re.fullmatch(r"online_lag([0-9.]+)_median_ms", k)))
+    if not pf and not sm:
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    if pf:
+        axes[0].loglog([n for n, _ in pf], [v for _, v in pf], "o-")
+        axes[0].axhline(3.0, color="grey", ls="--", lw=1, label="3 ms target at 1000")
+        axes[0].set(xlabel="particles", ylabel="ms per predict + update", title="particle filter")
+        axes[0].legend()
+    if sm:
+        axes[1].plot([n for n, _ in sm], [v for _, v in sm], "o-")
+        axes[1].axhline(3.0, color="grey", ls="--", lw=1, label="3 ms target at 1 s")
+        axes[1].set(xlabel="lag (s)", ylabel="median ms per online update", title="fixed-lag smoother")
+        axes[1].legend()
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(HERE / "scaling.png", dpi=110)
+    plt.close(fig)
+    return "scaling.png"
 
 
 def main(argv=None) -> int:
@@ -139,7 +174,11 @@ def main(argv=None) -> int:
         print(f"   {name}: {time.perf_counter() - t:.0f} s", flush=True)
         store.write_text(json.dumps(results, indent=1, default=float))  # keep what is done
         (HERE / "RESULTS.md").write_text(render(results))
+    plot = plot_scaling(results)
+    if plot:
+        results.setdefault("scaling", {})["plots"] = [plot]
     (HERE / "RESULTS.md").write_text(render(results))
+    store.write_text(json.dumps(results, indent=1, default=float))
     print(f"wrote {HERE / 'RESULTS.md'}")
     return 0
 
