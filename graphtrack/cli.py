@@ -24,7 +24,9 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="graphtrack", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="graphtrack",
+                     description="Track dVRK surgical tools in endoscope video: estimate the lumped-error "
+                                 "transform E (camera-from-base) from images and noisy joint readings.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMANDS:
         try:
