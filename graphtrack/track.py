@@ -134,6 +134,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     per stage) and ``fps``.
     """
     from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
+    from graphtrack.io.outdir import writable_dir
     from graphtrack.io.recording import open_recording
     from graphtrack.io.trajectory import TrajectoryWriter
 
@@ -146,14 +147,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         if not quiet:
             print(f"graphtrack: warning: {w}", file=sys.stderr)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
-    out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".graphtrack-write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as e:
-        raise InputError(f"{out}: cannot write the output folder ({e.strerror})") from None
+    out = writable_dir(out)
     pipe = Pipeline(ctx, options)
     extra = [c for c in _extra_columns(pipe.estimator)]
     overlay = None

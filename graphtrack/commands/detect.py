@@ -20,7 +20,6 @@ from __future__ import annotations
 import csv
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -41,15 +40,12 @@ def detect_recording(path, out, detector: str = "learned", weights: str | None =
     from graphtrack.detect.pixel_sets import endpoints_set, line_set
     from graphtrack.estimate.context import TrackingContext
     from graphtrack.io.recording import open_recording
+    from graphtrack.io.outdir import writable_dir
     from graphtrack.robot.features import base_features, shaft_lines
 
     rec = open_recording(path)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
-    out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise InputError(f"{out}: cannot create the output folder ({e.strerror})") from None
+    out = writable_dir(out)
     from graphtrack.detect import make_detector
 
     det = make_detector(detector, **({"weights": weights} if weights else {}))

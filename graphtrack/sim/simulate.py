@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from graphtrack.errors import InputError
+from graphtrack.io.outdir import writable_dir
 from graphtrack.geometry.camera import Calibration, save_calibration
 from graphtrack.geometry.se3 import matrix_to_quaternion, transform_points
 from graphtrack.robot.description import save_robot_json
@@ -134,13 +135,7 @@ class Simulation:
 
 
 def _prepare_out(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".graphtrack-write-test"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as e:
-        raise InputError(f"{out}: cannot write the recording there ({e.strerror or e})") from None
+    writable_dir(out, "the recording there")
     for old in list(out.glob("*.bag")) + [out / "frames", out / "joints.csv", out / "labels.csv"]:
         if old.is_dir():
             shutil.rmtree(old)
