@@ -41,6 +41,7 @@ class TrackOptions:
     beta: float = 0.9
     seed: int = 0
     detect_scale: float | None = None  # None: auto, detect at most 960 px wide
+    tip_feature: str | None = None     # a point feature to evaluate instead of robot.json's tool_tip
 
 
 def auto_detect_scale(width: int, max_width: int = 960) -> float:
@@ -122,6 +123,24 @@ def tip_pixel(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
     return ctx.camera.project_raw(tip)
 
 
+def _evaluated_tip(rec, tip_feature: str | None):
+    """The robot with the point that is evaluated as the tool tip (format doc: robot.json's
+    ``tool_tip``; when it is missing, evaluation must be told which point feature to use)."""
+    import dataclasses
+
+    robot = rec.robot
+    if tip_feature:
+        names = {p.name: p for p in robot.point_features}
+        if tip_feature not in names:
+            raise InputError(f"--tip-feature: {rec.path / 'robot.json'} has no point feature {tip_feature!r} "
+                             f"(it has: {', '.join(names) or 'none'})")
+        return dataclasses.replace(robot, tool_tip=names[tip_feature])
+    if robot.tool_tip is None and rec.labels:
+        raise InputError(f"{rec.path / 'robot.json'}: no tool_tip, so labels.csv cannot be scored; "
+                         "name the point feature to evaluate with --tip-feature NAME")
+    return robot
+
+
 def _extra_columns(estimator) -> list[str]:
     return list(getattr(estimator, "extra_columns", ()))
 
@@ -146,6 +165,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     for w in rec.warnings:
         if not quiet:
             print(f"graphtrack: warning: {w}", file=sys.stderr)
+    rec.robot = _evaluated_tip(rec, options.tip_feature)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)

@@ -199,3 +199,24 @@ def test_unwritable_out_exit_2(tmp_path, capsys):
     blocker.write_text("x")
     code, err = run_cli(["track", str(seq), "--out", str(blocker / "sub")], capsys)
     assert code == 2 and "sub" in err
+
+
+def test_tip_feature_option_and_missing_tool_tip(tmp_path, capsys):
+    seq, E, qs = make_sequence(tmp_path / "seq")
+    doc = json.loads((seq / "robot.json").read_text())
+    del doc["tool_tip"]
+    (seq / "robot.json").write_text(json.dumps(doc))
+    code, err = run_cli(["track", str(seq), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "tool_tip" in err and "--tip-feature" in err
+    code, err = run_cli(["track", str(seq), "--out", str(tmp_path / "o"), "--tip-feature", "nope"], capsys)
+    assert code == 2 and "marker_0" in err
+    out = tmp_path / "o2"
+    assert main(["track", str(seq), "--out", str(out), "--tip-feature", "marker_0", "--quiet"]) == 0
+    rows = list(csv.reader(open(out / "trajectory.csv")))
+    # marker_0 of the PSM model is on link 4 at (r, 0, -0.010): project it independently
+    doc = yaml.safe_load((seq / "handeye.yaml").read_text())
+    q = qs[int(rows[1][0])]
+    p = (explicit_psm(q)[4] @ [0.004, 0, -0.010, 1])[:3]
+    uv, _ = cv2.projectPoints(p[None], np.asarray(doc["PSM1_rvec"], float),
+                              np.asarray(doc["PSM1_tvec"], float) / 1000, K, D)
+    assert np.linalg.norm(np.array([float(rows[1][9]), float(rows[1][10])]) - uv.reshape(2)) < 0.05

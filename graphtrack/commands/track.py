@@ -29,6 +29,8 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="k
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--alpha", type=float, default=10.0, help="pixel-set radius alpha (px)")
     p.add_argument("--beta", type=float, default=0.9, help="pixel-set heatmap threshold beta")
+    p.add_argument("--tip-feature", metavar="NAME",
+                   help="evaluate this robot.json point feature as the tool tip (default: tool_tip)")
     p.add_argument("--max-frames", type=int, default=None, metavar="N")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
@@ -53,7 +55,8 @@ def options_from_args(args):
     det_opts = {"weights": args.weights} if args.weights else {}
     return TrackOptions(estimator=args.estimator, observation=args.observation, detector=args.detector,
                         markers=not args.no_markers, estimator_options=est_opts, detector_options=det_opts,
-                        alpha=args.alpha, beta=args.beta, seed=args.seed, detect_scale=detect_scale)
+                        alpha=args.alpha, beta=args.beta, seed=args.seed, detect_scale=detect_scale,
+                        tip_feature=getattr(args, "tip_feature", None))
 
 
 def run(args) -> int:
