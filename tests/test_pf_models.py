@@ -172,3 +172,27 @@ def test_marker_hungarian_fallback_matches_enumeration():
         om.MAX_ENUMERATED = old
     assert hung[0] == pytest.approx(exact[0])
     assert np.all(hung <= exact + 1e-9)  # one shared assignment can only be worse
+
+
+def test_marker_losses_and_pixel_effective_count():
+    d = np.array([0.0, 2.0, 4.0, 10.0, 100.0])
+    np.testing.assert_allclose(om.marker_cost(d, "laplace", gamma=0.15), 0.15 * d)
+    # huber, sigma 2, k 2: quadratic up to 4 px, then linear with slope k / sigma
+    np.testing.assert_allclose(om.marker_cost(d, "huber", sigma=2.0, huber_k=2.0), [0, 0.5, 2.0, 2 * 5 - 2, 2 * 50 - 2])
+    np.testing.assert_allclose(om.marker_cost(d, "cauchy", sigma=2.0), np.log1p((d / 2.0) ** 2))
+    with pytest.raises(ValueError):
+        om.marker_cost(d, "nope")
+    # gated: a far detection costs loss(gate) for every particle
+    proj = np.random.default_rng(0).uniform(0, 500, (20, 4, 2))
+    far = om.marker_loglik(proj, np.ones((20, 4), bool), np.array([[1e6, 1e6]]), gate=50.0, loss="huber")
+    np.testing.assert_allclose(far, -(2.0 * 25.0 - 2.0))
+    # effective count: an edge of m pixels is worth min(1, n / m) of its plain sum
+    rho = np.array([[10.0, 200.0], [12.0, 200.0]])
+    theta = np.zeros((2, 2))
+    pix = np.stack([np.full(100, 11.0), np.arange(100.0)], 1)
+    plain = om.pixel_loglik(rho, theta, pix)
+    w = om.pixel_loglik(rho, theta, pix, pixel_weights=np.full(100, 0.1))
+    np.testing.assert_allclose(w, 0.1 * plain, rtol=1e-5)
+    obs = Observation("line-intensities", pixels=[pix])
+    s = om.shaft_loglik(obs, rho, theta, np.ones(2, bool), pixel_effective_count=10.0)
+    np.testing.assert_allclose(s, 0.1 * plain, rtol=1e-5)

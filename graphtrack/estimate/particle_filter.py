@@ -152,7 +152,10 @@ class ParticleFilter:
                  use_edge_ids: bool = False, pixel_sigma: float = om.PIXEL_SIGMA,
                  pixel_outlier_sigmas: float = om.PIXEL_OUTLIER_SIGMAS,
                  pixel_weight: float = om.PIXEL_WEIGHT,
-                 marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE):
+                 marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE,
+                 pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
+                 marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
+                 marker_huber_k: float = om.MARKER_HUBER_K):
         if observation not in om.OBSERVATION_MODELS:
             raise ValueError(f"unknown observation model {observation!r}")
         if int(particles) < 1:
@@ -172,9 +175,14 @@ class ParticleFilter:
         self.shaft_options = dict(gamma_rho=gamma_rho, gamma_theta=gamma_theta,
                                   use_edge_ids=use_edge_ids, pixel_sigma=pixel_sigma,
                                   pixel_outlier_sigmas=pixel_outlier_sigmas,
-                                  pixel_weight=pixel_weight)
+                                  pixel_weight=pixel_weight,
+                                  pixel_effective_count=pixel_effective_count)
+        if marker_loss not in om.MARKER_LOSSES:
+            raise ValueError(f"unknown marker loss {marker_loss!r}")
         self.marker_gamma = float(marker_gamma)
         self.marker_gate = float(marker_gate)
+        self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
+                                   huber_k=float(marker_huber_k))
         self._buffers: dict = {}
         self._geometry_cache = None
         self.reset()
@@ -295,7 +303,8 @@ class ParticleFilter:
         if self.use_markers and len(observation.markers):
             ll += om.marker_loglik(h["markers"], h["visible"], observation.markers,
                                    self.marker_gamma, self.marker_gate,
-                                   estimate_index=int(np.argmax(self.logw)) if n == self.N else 0)
+                                   estimate_index=int(np.argmax(self.logw)) if n == self.N else 0,
+                                   **self.marker_options)
         return ll
 
     def step(self, frame: Frame, observation=None) -> Estimate:
