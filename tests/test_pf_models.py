@@ -104,12 +104,12 @@ def test_markers_association_is_order_free_and_gated():
     np.testing.assert_allclose(a, b)
     assert a[0] == pytest.approx(-0.15 * 3 * np.sqrt(2))
     far = om.marker_loglik(proj, vis, np.array([[1e6, 1e6]]))
-    np.testing.assert_allclose(far, -0.15 * 20.0)  # every particle: one outlier
+    np.testing.assert_allclose(far, -0.15 * om.MARKER_GATE)  # every particle: one outlier (cost at the gate)
     hidden = om.marker_loglik(proj, np.zeros((50, 4), bool), det)
-    np.testing.assert_allclose(hidden, -0.15 * 20.0 * 3)
+    np.testing.assert_allclose(hidden, -0.15 * om.MARKER_GATE * 3)
     # more detections than model markers: unmatched ones are outliers
     many = om.marker_loglik(proj, vis, np.vstack([proj[0] + 0.0, [[1e5, 1e5]]]))
-    assert many[0] == pytest.approx(-0.15 * 20.0)
+    assert many[0] == pytest.approx(-0.15 * om.MARKER_GATE)
 
 
 def test_invalid_and_empty(scene):
