@@ -26,11 +26,12 @@ from __future__ import annotations
 import numpy as np
 
 from factors.limb import ShaftAxis, limb_lines, line_matrix
+from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 from graphtrack.geometry.lines import line_difference
 
 
-class LineParameterError:
+class LineParameterError(PoseErrorFunction):
     def __init__(self, line: np.ndarray, axis: ShaftAxis, K: np.ndarray,
                  sigma_rho: float = 3.0, sigma_theta: float = 0.01):
         self.rho_d, self.theta_d = (float(v) for v in np.asarray(line, float).ravel()[:2])
@@ -62,12 +63,6 @@ class LineParameterError:
         J = np.vstack([drho_dL @ dL[i], dth_dL @ dL[i]])
         return r, J
 
-    def __call__(self, this, values, H):
-        E = values.atPose3(this.keys()[0]).matrix()
-        r, J = self.evaluate(E, H is not None)
-        if H is not None:
-            H[0] = J
-        return r
 
 
 def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,

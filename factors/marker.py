@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 
 
@@ -52,7 +53,7 @@ def associate(predicted: np.ndarray, detected: np.ndarray, gate: float = 20.0,
     return a
 
 
-class MarkerError:
+class MarkerError(PoseErrorFunction):
     def __init__(self, detections: np.ndarray, points: np.ndarray, K: np.ndarray, sigma: float = 2.0,
                  gate: float = 20.0, kernel: RobustKernel | str | None = "cauchy"):
         self.u = np.asarray(detections, float).reshape(-1, 2)
@@ -99,12 +100,6 @@ class MarkerError:
         e, Jr = self.kernel.apply(z, J)
         return e.reshape(-1), (Jr.reshape(-1, 6) if jacobian else None)
 
-    def __call__(self, this, values, H):
-        E = values.atPose3(this.keys()[0]).matrix()
-        e, J = self.evaluate(E, H is not None)
-        if H is not None:
-            H[0] = J
-        return e
 
 
 def marker_factor(key: int, detections: np.ndarray, points: np.ndarray, K: np.ndarray,

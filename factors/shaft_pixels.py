@@ -29,10 +29,11 @@ from __future__ import annotations
 import numpy as np
 
 from factors.limb import ShaftAxis, limb_lines, line_matrix
+from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 
 
-class ShaftPixelsError:
+class ShaftPixelsError(PoseErrorFunction):
     """Typed error function of one edge's pixel set (call it like GTSAM does)."""
 
     def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
@@ -70,12 +71,6 @@ class ShaftPixelsError:
         J = self.h @ dLi - zi[:, None] * (self.sigma * (ab0 @ dLi))[None, :]
         return self.kernel.apply_scalar(zi, J)
 
-    def __call__(self, this, values, H):
-        E = values.atPose3(this.keys()[0]).matrix()
-        e, J = self.evaluate(E, H is not None)
-        if H is not None:
-            H[0] = J
-        return e
 
 
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
