@@ -402,6 +402,20 @@ def _get(d: dict, *keys, default=float("nan")):
     return d if d is not None else default
 
 
+def _write_pair_table(path: Path, rows, recs, cells: dict, suffixes: tuple[str, str], digits: int) -> None:
+    """A CSV with two columns per recording (``<rec><suffix>``) holding each cell's
+    pair of numbers, or its state string (e.g. an error) and a blank."""
+    with path.open("w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["observation", "estimator"] + [f"{r}{sfx}" for r in recs for sfx in suffixes])
+        for row in rows:
+            vals = []
+            for r in recs:
+                v = cells.get((row, r), "")
+                vals += [v, ""] if isinstance(v, str) else [_fmt(v[0], digits), _fmt(v[1], digits)]
+            w.writerow(list(row) + vals)
+
+
 def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
     """table.md, table.csv, runtime.csv, results.csv from the cell folders; returns the table data."""
     recs = list(dict.fromkeys(c.recording for c in cells))
@@ -450,24 +464,8 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
         md += ["", "## Errors", ""] + [f"- {rec} / {key}: {msg}" for rec, key, msg in errors]
     (out / "table.md").write_text("\n".join(md) + "\n")
 
-    with (out / "table.csv").open("w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(["observation", "estimator"] + [h for r in recs for h in (f"{r}", f"{r}_std")])
-        for row in rows:
-            vals = []
-            for r in recs:
-                v = acc.get((row, r), "")
-                vals += [v, ""] if isinstance(v, str) else [_fmt(v[0], 4), _fmt(v[1], 4)]
-            w.writerow(list(row) + vals)
-    with (out / "runtime.csv").open("w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(["observation", "estimator"] + [h for r in recs for h in (f"{r}_ms_median", f"{r}_fps")])
-        for row in rows:
-            vals = []
-            for r in recs:
-                v = run.get((row, r), "")
-                vals += [v, ""] if isinstance(v, str) else [_fmt(v[0], 3), _fmt(v[1], 3)]
-            w.writerow(list(row) + vals)
+    _write_pair_table(out / "table.csv", rows, recs, acc, ("", "_std"), 4)
+    _write_pair_table(out / "runtime.csv", rows, recs, run, ("_ms_median", "_fps"), 3)
     with (out / "results.csv").open("w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
         cols = ["tip_error_px.mean", "tip_error_px.median", "tip_error_px.p95",
