@@ -70,8 +70,10 @@ class Pipeline:
         self.detector = None
         if self.needs_images:
             from graphtrack.detect import make_detector
+            from graphtrack.detect import observe
 
             self.detector = make_detector(options.detector, **options.detector_options)
+            self.observe = observe
         self.last_E = ctx.handeye.copy()
         self.rng = np.random.default_rng(options.seed)
         self.scale = options.detect_scale or auto_detect_scale(ctx.camera.width)
@@ -90,8 +92,7 @@ class Pipeline:
         ms = {}
         detection = observation = None
         if self.needs_images:
-            from graphtrack.detect.observe import make_observation, scale_detection, scale_observation
-
+            observe = self.observe
             t = time.perf_counter()
             und = self.ctx.camera.undistort(frame.image, self.scale)
             ms["undistort"] = 1e3 * (time.perf_counter() - t)
@@ -99,11 +100,11 @@ class Pipeline:
             detection = self.detector.detect(und, self.predicted_lines(frame))
             ms["detect"] = 1e3 * (time.perf_counter() - t)
             t = time.perf_counter()
-            observation = make_observation(detection, self.options.observation, alpha=self.options.alpha,
-                                           beta=self.options.beta, use_markers=self.options.markers,
-                                           rng=self.rng)
-            observation = scale_observation(observation, 1.0 / self.scale)  # to full-size pixels
-            detection = scale_detection(detection, 1.0 / self.scale)
+            observation = observe.make_observation(detection, self.options.observation,
+                                                   alpha=self.options.alpha, beta=self.options.beta,
+                                                   use_markers=self.options.markers, rng=self.rng)
+            observation = observe.scale_observation(observation, 1.0 / self.scale)  # full-size pixels
+            detection = observe.scale_detection(detection, 1.0 / self.scale)
             ms["observe"] = 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
         estimate = self.estimator.step(frame, observation)
@@ -141,10 +142,6 @@ def _evaluated_tip(rec, tip_feature: str | None):
     return robot
 
 
-def _extra_columns(estimator) -> list[str]:
-    return list(getattr(estimator, "extra_columns", ()))
-
-
 def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
           progress: bool = True, max_frames: int | None = None, quiet: bool = False) -> dict:
     """Run one estimator over a recording; write the outputs into ``out``; return metrics.
@@ -169,7 +166,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
-    extra = [c for c in _extra_columns(pipe.estimator)]
+    extra = list(getattr(pipe.estimator, "extra_columns", ()))  # the estimator's own columns
     overlay = None
     if video:
         from graphtrack.eval.overlay import OverlayWriter

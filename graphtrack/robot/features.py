@@ -64,7 +64,7 @@ class Features:
         )
 
 
-def base_features(robot: RobotDescription, q: np.ndarray, tip: "PointFeatureLike" = None) -> Features:
+def base_features(robot: RobotDescription, q: np.ndarray) -> Features:
     """Features in the PSM base frame for joint vectors q (..., n_joints)."""
     L = link_transforms(robot, q)  # (..., n_links+1, 4, 4)
 
@@ -86,7 +86,7 @@ def base_features(robot: RobotDescription, q: np.ndarray, tip: "PointFeatureLike
     pf = robot.point_features
     sf = robot.shaft_features
     sk = robot.skeleton
-    tip_feat = tip if tip is not None else robot.tool_tip
+    tip_feat = robot.tool_tip
     tip_xyz = None
     if tip_feat is not None:
         tip_xyz = on_links([tip_feat.link], [tip_feat.position])[..., 0, :]
@@ -115,6 +115,3 @@ def shaft_lines(cam: Features, K: np.ndarray, shaft: int = 0):
     """
     return project_cylinder(cam.shaft_p0[..., shaft, :], cam.shaft_d[..., shaft, :],
                             cam.shaft_r[shaft], K)
-
-
-PointFeatureLike = object
