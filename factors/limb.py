@@ -25,8 +25,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from graphtrack.geometry.cylinder import limb_planes
-
 
 def skew3(a: np.ndarray) -> np.ndarray:
     return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])

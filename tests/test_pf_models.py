@@ -69,20 +69,6 @@ def test_polar_pairing_is_order_free(scene):
     assert one[0] == pytest.approx(0.0, abs=1e-6)
 
 
-def test_pixel_model_torch_and_numpy_agree(scene):
-    q = scene.joints(30)
-    obs = scene.observation(q, "line-intensities", np.random.default_rng(1))
-    pf = ParticleFilter(scene.ctx, markers=False)
-    x = scene.x_true + np.random.default_rng(2).standard_normal((200, 6)) * ([1e-3] * 3 + [1e-2] * 3)
-    a = pf.log_likelihood(q, obs, x)
-    om.USE_TORCH = False
-    try:
-        b = pf.log_likelihood(q, obs, x)
-    finally:
-        om.USE_TORCH = True
-    np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-2)
-
-
 def test_pixel_floor_bounds_a_stray_pixel(scene):
     """One far outlier costs at most c^2/2 nats (the robust floor)."""
     rho = np.array([[100.0, 200.0]])
@@ -142,7 +128,7 @@ def test_absurd_observations_stay_finite(scene, model):
 
 
 def test_lean_limb_lines_match_cylinder_projection():
-    from graphtrack.estimate.particle_filter import limb_lines
+    from graphtrack.estimate.pf.projection import limb_lines, line_angles
     from graphtrack.geometry.cylinder import project_cylinder
 
     rng = np.random.default_rng(0)
@@ -151,11 +137,50 @@ def test_lean_limb_lines_match_cylinder_projection():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     K = np.array([[1000.0, 0, 640], [0, 1000, 512], [0, 0, 1]])
     a = project_cylinder(p0, d, 0.004, K)
-    b = limb_lines(p0, d, 0.004, K)
-    np.testing.assert_array_equal(a[2], b[2])
+    rho, cos, sin, valid = limb_lines(p0.T, d.T, 0.004, K)
+    theta = line_angles(cos, sin)
+    np.testing.assert_array_equal(a[2], valid)
     v = a[2]
-    np.testing.assert_allclose(b[0][v], a[0][v], rtol=1e-12, atol=1e-6)
-    np.testing.assert_allclose(b[1][v], a[1][v], atol=1e-12)
+    np.testing.assert_allclose(rho.T[v], a[0][v], rtol=1e-12, atol=1e-6)
+    np.testing.assert_allclose(theta.T[v], a[1][v], atol=1e-12)
+
+
+def test_particle_rotations_match_scipy():
+    """Component-major Rodrigues against scipy's rotation vectors, small angles included."""
+    from scipy.spatial.transform import Rotation
+
+    from graphtrack.estimate.pf.projection import rotations
+
+    rng = np.random.default_rng(1)
+    w = rng.standard_normal((500, 3)) * np.repeat([1.0, 1e-3, 1e-6, 1e-9, 0.0], 100)[:, None]
+    R = np.moveaxis(rotations(w), -1, 0)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-14)
+
+
+def test_pixel_model_matches_per_pixel_formula():
+    """Pruned float32 product against the plain float64 formula, for tight clouds
+    (most pixels scored against one edge), wide ones and a cloud wrapping theta."""
+    rng = np.random.default_rng(5)
+    sig, c = 2.0, 3.0
+    for rho0, th0, spread_r, spread_t in [((300.0, 380.0), (0.7, 0.72), 1.0, 0.002),
+                                          ((300.0, 380.0), (0.7, 0.72), 40.0, 0.3),
+                                          ((50.0, 120.0), (0.001, 0.002), 2.0, 0.01)]:
+        rho = np.array(rho0) + spread_r * rng.standard_normal((300, 2))
+        theta = np.array(th0) + spread_t * rng.standard_normal((300, 2))
+        rho = np.where(theta < 0, -rho, rho)
+        theta = np.mod(theta, np.pi)
+        t = rng.uniform(-400, 400, 200)
+        pix = []
+        for j in range(2):
+            n = np.array([np.cos(th0[j]), np.sin(th0[j])])
+            pix.append(rho0[j] * n + t[:, None] * [-n[1], n[0]] + rng.standard_normal((200, 1)) * n)
+        pix = np.concatenate(pix + [rng.uniform(-500, 900, (40, 2))]) + [640, 512]
+        rho = rho + np.cos(theta) * 640 + np.sin(theta) * 512
+        w = rng.uniform(0.2, 1.0, len(pix))
+        R = np.cos(theta)[:, :, None] * pix[None, None, :, 0] + np.sin(theta)[:, :, None] * pix[None, None, :, 1] - rho[:, :, None]
+        expect = -(np.minimum((R * R).min(axis=1), (c * sig) ** 2) * w).sum(axis=1) / (2 * sig * sig)
+        got = om.pixel_loglik(rho, theta, pix, sig, c, pixel_weights=w)
+        np.testing.assert_allclose(got, expect, rtol=1e-5, atol=1e-2)
 
 
 def test_marker_hungarian_fallback_matches_enumeration():

@@ -91,6 +91,8 @@ from functools import lru_cache
 import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS
+from graphtrack.estimate.pf.pixel_model import (PIXEL_OUTLIER_SIGMAS, PIXEL_SIGMA,  # noqa: F401
+                                                PIXEL_WEIGHT, pixel_loglik)
 from graphtrack.geometry.lines import line_difference
 
 #: log-likelihood of a particle whose shaft projection is degenerate (finite).
@@ -99,9 +101,6 @@ INVALID_LOGLIK = -1.0e6
 #: Defaults (units in the names): polar Laplace rates, pixel sigma, marker model.
 GAMMA_RHO = 0.5        # 1/px: 2 px of rho error costs 1 nat
 GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
-PIXEL_SIGMA = 2.0      # px
-PIXEL_OUTLIER_SIGMAS = 3.0
-PIXEL_WEIGHT = 1.0
 PIXEL_EFFECTIVE_COUNT = 30.0  # per edge (0: every pixel counts once); see the module docstring
 MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
 MARKER_GATE = 50.0     # px (paper: 20); see the module docstring
@@ -155,103 +154,6 @@ def _logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
     return (m + np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True))).squeeze(axis)
 
 
-def pixel_loglik(rho: np.ndarray, theta: np.ndarray, pixels: np.ndarray,
-                 sigma: float = PIXEL_SIGMA, outlier_sigmas: float = PIXEL_OUTLIER_SIGMAS,
-                 weight: float = PIXEL_WEIGHT, _buffers: dict | None = None,
-                 pixel_weights: np.ndarray | None = None) -> np.ndarray:
-    """Pixel model over particles: rho, theta (N, L) projected edges, pixels (P, 2).
-
-    ``pixel_weights`` (P,): an extra weight per pixel (the per-edge tempering
-    of :func:`shaft_loglik`), applied inside the sum; None: all 1.
-
-    Residuals are formed as one (N*L, 3) x (3, P) float32 product (torch when
-    available, else numpy)
-    [cos theta, sin theta, -rho] . [x, y, 1]^T (float32 is exact to ~1e-4 px
-    here), squared, reduced over the edges by min (nearer edge), floored at
-    (c sigma)^2 and summed over pixels. Returns (N,); zeros without pixels.
-    """
-    pixels = np.asarray(pixels, dtype=float).reshape(-1, 2)
-    fin = np.all(np.isfinite(pixels), axis=1)
-    if not np.all(fin):
-        pixels = pixels[fin]
-        if pixel_weights is not None:
-            pixel_weights = np.asarray(pixel_weights, float)[fin]
-    n, L = rho.shape
-    P = len(pixels)
-    if P == 0:
-        return np.zeros(n)
-    # centre the pixels: keeps float32 accurate for large coordinates
-    c0 = pixels.mean(axis=0)
-    rho_c = rho - (np.cos(theta) * c0[0] + np.sin(theta) * c0[1])
-    A = np.empty((n, L, 3), dtype=np.float32)
-    A[..., 0] = np.cos(theta)
-    A[..., 1] = np.sin(theta)
-    A[..., 2] = -rho_c
-    B = np.empty((3, P), dtype=np.float32)
-    B[:2] = (pixels - c0).T
-    B[2] = 1.0
-    floor = (outlier_sigmas * sigma) ** 2
-    buf = _buffers if _buffers is not None else {}
-    torch = _torch()
-    if torch is not None:
-        At = torch.from_numpy(A.reshape(n * L, 3))
-        Bt = torch.from_numpy(B)
-        R = buf.get("Rt")
-        if R is None or tuple(R.shape) != (n * L, P):
-            R = buf["Rt"] = torch.empty((n * L, P), dtype=torch.float32)
-        torch.matmul(At, Bt, out=R)
-        R.square_()
-        R3 = R.view(n, L, P)
-        T = R3[:, 0].clone() if L == 1 else torch.minimum(R3[:, 0], R3[:, 1])
-        for j in range(2, L):
-            torch.minimum(T, R3[:, j], out=T)
-        T.clamp_(max=floor)
-        if pixel_weights is None:
-            ssq = T.sum(dim=1).numpy().astype(np.float64)
-        else:
-            ssq = torch.mv(T, torch.from_numpy(np.asarray(pixel_weights, np.float32))).numpy().astype(np.float64)
-    else:
-        R = buf.get("R")
-        if R is None or R.shape != (n * L, P):
-            R = buf["R"] = np.empty((n * L, P), dtype=np.float32)
-            buf["T"] = np.empty((n, P), dtype=np.float32)
-        T = buf["T"]
-        np.matmul(A.reshape(n * L, 3), B, out=R)
-        np.square(R, out=R)
-        R3 = R.reshape(n, L, P)
-        if L == 1:
-            np.copyto(T, R3[:, 0])
-        else:
-            np.minimum(R3[:, 0], R3[:, 1], out=T)
-            for j in range(2, L):
-                np.minimum(T, R3[:, j], out=T)
-        np.minimum(T, np.float32(floor), out=T)
-        if pixel_weights is None:
-            ssq = T.sum(axis=1, dtype=np.float64)
-        else:
-            ssq = (T @ np.asarray(pixel_weights, np.float32)).astype(np.float64)
-    return -weight * ssq / (2.0 * sigma * sigma)
-
-
-_TORCH = []
-
-
-def _torch():
-    """torch if importable (its single-thread float32 GEMM + in-place ops are ~2x
-    numpy's for the (2N, 3) x (3, P) residual product), else None."""
-    if not _TORCH:
-        try:
-            import torch
-        except Exception:  # pragma: no cover - torch is optional
-            torch = None
-        _TORCH.append(torch)
-    return _TORCH[0] if USE_TORCH else None
-
-
-#: set False to force the numpy path (tests compare both)
-USE_TORCH = True
-
-
 @lru_cache(maxsize=64)
 def _assignments(n_model: int, n_det: int) -> np.ndarray:
     """All injective maps detected -> model, as (A, n_det) model indices, -1 = unmatched
@@ -264,6 +166,20 @@ def _assignments(n_model: int, n_det: int) -> np.ndarray:
         r[list(chosen)] = np.arange(n_model)
         rows.append(r)
     return np.unique(np.array(rows, dtype=int), axis=0)
+
+
+@lru_cache(maxsize=64)
+def _assignment_matrix(n_model: int, n_det: int) -> np.ndarray:
+    """One-hot (n_det * M', A) matrix of :func:`_assignments` (M' = n_model, plus
+    one "unmatched" column when n_det > n_model): column a selects entry
+    (k, model index of k under a) of a flattened (n_det, M') cost table."""
+    a = _assignments(n_model, n_det)
+    width = n_model + (1 if n_det > n_model else 0)
+    a = np.where(a < 0, n_model, a)
+    H = np.zeros((n_det * width, len(a)))
+    for k in range(n_det):
+        H[k * width + a[:, k], np.arange(len(a))] = 1.0
+    return H
 
 
 MAX_ENUMERATED = 720
@@ -292,37 +208,44 @@ def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarr
     c the marker ``loss`` (laplace: gamma d; huber / cauchy: see marker_cost).
     When the assignments are too many to enumerate (> MAX_ENUMERATED) the
     Hungarian assignment at particle ``estimate_index`` (default 0) is used
-    for all particles.
+    for all particles. (:func:`marker_loglik_mn` takes the particle-last layout.)
     """
+    projected = np.asarray(projected, float)
+    return marker_loglik_mn(projected[..., 0].T, projected[..., 1].T, np.asarray(visible).T,
+                            detected, gamma, gate, estimate_index, loss, sigma, huber_k)
+
+
+def marker_loglik_mn(u: np.ndarray, v: np.ndarray, visible: np.ndarray, detected: np.ndarray,
+                     gamma: float = MARKER_GAMMA, gate: float = MARKER_GATE,
+                     estimate_index: int | None = None, loss: str = MARKER_LOSS,
+                     sigma: float = MARKER_SIGMA, huber_k: float = MARKER_HUBER_K) -> np.ndarray:
+    """:func:`marker_loglik` with the projected markers as u, v (M, N) px and visible (M, N)."""
     detected = _finite_rows(detected, 2)
-    n, M = projected.shape[:2]
+    M, n = u.shape
     D = len(detected)
     if D == 0 or M == 0:
         return np.zeros(n)
-    dx = projected[:, None, :, 0] - detected[None, :, None, 0]
-    dy = projected[:, None, :, 1] - detected[None, :, None, 1]
-    dist = np.fmin(np.sqrt(dx * dx + dy * dy), gate)  # (N, D, M); fmin: NaN -> gate
-    dist = np.where(visible[:, None, :], dist, gate)
+    dx = u[None] - detected[:, 0, None, None]
+    dy = v[None] - detected[:, 1, None, None]
+    dist = np.fmin(np.sqrt(dx * dx + dy * dy), gate)  # (D, M, N); fmin: NaN -> gate
+    dist = np.where(visible[None], dist, gate)
     dist = marker_cost(dist, loss, gamma, sigma, huber_k)
     gate = float(marker_cost(np.float64(gate), loss, gamma, sigma, huber_k))
     count = 1
     for i in range(min(M, D)):
         count *= max(M, D) - i
     if count <= MAX_ENUMERATED:
-        a = _assignments(M, D)  # (A, D) model index per detected marker, -1 = unmatched
-        if D > M:  # column M of the table = unmatched (cost gate)
-            dist = np.concatenate([dist, np.full((n, D, 1), gate)], axis=2)
-            a = np.where(a < 0, M, a)
-        cost = dist[:, 0, a[:, 0]]  # (N, A); a short loop over D beats a small-axis sum
-        for k in range(1, D):
-            cost += dist[:, k, a[:, k]]
-        total = cost.min(axis=1)
+        if D > M:  # row M of each table = unmatched (cost gate)
+            dist = np.concatenate([dist, np.full((D, 1, n), gate)], axis=1)
+        # cost of every assignment at once: one-hot (A, D*M') . (D*M', N)
+        cost = _assignment_matrix(M, D).T @ dist.reshape(-1, n)
+        total = cost.min(axis=0)
     else:
         from scipy.optimize import linear_sum_assignment
 
         i0 = 0 if estimate_index is None else estimate_index
-        r, c = linear_sum_assignment(dist[i0])
-        total = dist[:, r, c].sum(axis=1) + gate * (D - len(r))
+        r, c = linear_sum_assignment(dist[:, :, i0])
+        total = dist[r, c].sum(axis=0) + gate * (D - len(r))
     return -total
 
 
@@ -331,8 +254,13 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
                  use_edge_ids: bool = False, pixel_sigma: float = PIXEL_SIGMA,
                  pixel_outlier_sigmas: float = PIXEL_OUTLIER_SIGMAS,
                  pixel_weight: float = PIXEL_WEIGHT, _buffers: dict | None = None,
-                 pixel_effective_count: float = PIXEL_EFFECTIVE_COUNT) -> np.ndarray:
+                 pixel_effective_count: float = PIXEL_EFFECTIVE_COUNT,
+                 cos_sin: tuple | None = None) -> np.ndarray:
     """The shaft term for ``observation.model`` over particles (N,).
+
+    rho, theta (N, 2): projected edges (px, rad). ``cos_sin``: their
+    (cos theta, sin theta) if the caller has them; theta may then be a
+    callable returning theta, evaluated only by the polar models.
 
     Pixel models with ``pixel_effective_count`` n > 0: the pixels of an edge
     set of m pixels each count min(1, n / m) (the edge is worth at most n
@@ -349,7 +277,8 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
         if len(observation.lines) == 0:
             return np.zeros(n)
         ids = observation.edge_ids if use_edge_ids and len(observation.edge_ids) else None
-        ll = polar_loglik(rho, theta, observation.lines, gamma_rho, gamma_theta, ids)
+        ll = polar_loglik(rho, theta() if callable(theta) else theta, observation.lines,
+                          gamma_rho, gamma_theta, ids)
     else:
         sets = [np.asarray(p, float).reshape(-1, 2) for p in observation.pixels if len(p)]
         if not sets:
@@ -358,6 +287,6 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
         if pixel_effective_count and pixel_effective_count > 0:
             pw = np.concatenate([np.full(len(p), min(1.0, pixel_effective_count / len(p))) for p in sets])
         ll = pixel_loglik(rho, theta, sets[0] if len(sets) == 1 else np.concatenate(sets),
-                          pixel_sigma, pixel_outlier_sigmas, pixel_weight, _buffers, pw)
+                          pixel_sigma, pixel_outlier_sigmas, pixel_weight, _buffers, pw, cos_sin)
     ll = np.where(valid & np.isfinite(ll), ll, INVALID_LOGLIK)
     return ll

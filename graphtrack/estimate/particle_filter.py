@@ -14,6 +14,10 @@ Motion model: x_t = x_{t-1} + v_t, v_t ~ N(0, diag(s_b^2 I_3, s_w^2 I_3)),
 s_b = ``motion_std_b`` (m/frame), s_w = ``motion_std_w`` (rad/frame).
 Prior: x_0 ~ N(0, diag(i_b^2 I_3, i_w^2 I_3)) (``init_std_b``, ``init_std_w``).
 
+Every particle is projected at once (:mod:`graphtrack.estimate.pf.projection`:
+one GEMM maps the frame's features, then Chaumette's limb lines and the
+pinhole, in a component-major layout).
+
 Update: log w_n += log P(z_t | E(x_n)) (shaft model of Observation.model
 + markers, :mod:`graphtrack.estimate.observation_models`), in log space with
 max-subtraction. A frame without shaft or markers leaves the weights alone.
@@ -58,70 +62,10 @@ import numpy as np
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
-from graphtrack.geometry.se3 import average_rotations
-from graphtrack.robot.kinematics import link_transforms
-
-
-
-def rodrigues(w: np.ndarray) -> np.ndarray:
-    """R(w) = I + A [w]x + B [w]x^2 for w (N, 3), with [w]x^2 = w w^T - |w|^2 I,
-    A = sin t / t, B = (1 - cos t) / t^2 (Taylor below t = 1e-4). (N, 3, 3)."""
-    t2 = np.einsum("ni,ni->n", w, w)
-    t = np.sqrt(t2)
-    small = t < 1e-4
-    ts = np.where(small, 1.0, t)
-    A = np.where(small, 1.0 - t2 / 6.0, np.sin(ts) / ts)
-    B = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(ts)) / (ts * ts))
-    R = (B[:, None, None] * w[:, :, None]) * w[:, None, :]
-    d = 1.0 - B * t2
-    R[:, 0, 0] += d
-    R[:, 1, 1] += d
-    R[:, 2, 2] += d
-    aw = A[:, None] * w
-    R[:, 0, 1] -= aw[:, 2]
-    R[:, 1, 0] += aw[:, 2]
-    R[:, 0, 2] += aw[:, 1]
-    R[:, 2, 0] -= aw[:, 1]
-    R[:, 1, 2] -= aw[:, 0]
-    R[:, 2, 1] += aw[:, 0]
-    return R
-
-
-_COS_END_ON = np.cos(np.radians(2.0))
-
-
-def limb_lines(p0: np.ndarray, d: np.ndarray, r: float, K: np.ndarray):
-    """:func:`graphtrack.geometry.cylinder.project_cylinder` for (N, 3) inputs with
-    UNIT d, written out for speed (about half the numpy calls); same closed form,
-    same line order, canonical (rho, theta) and ``valid`` (end-on at 2 deg).
-    Returns rho (N, 2) px, theta (N, 2) rad, valid (N,)."""
-    pd = np.einsum("ni,ni->n", p0, d)
-    m = p0 - pd[:, None] * d
-    mn = np.sqrt(np.einsum("ni,ni->n", m, m))
-    inside = mn <= r * (1.0 + 1e-9)
-    safe = np.where(inside, 1.0, mn)
-    u = m / safe[:, None]
-    v = np.cross(d, u)
-    alpha = np.where(inside, 0.0, r / safe)[:, None]
-    beta = np.sqrt(np.clip(1.0 - alpha * alpha, 0.0, None))
-    n = alpha[:, None, :] * u[:, None, :] + np.array([1.0, -1.0])[None, :, None] * (beta * v)[:, None, :]
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    A = n[..., 0] / fx
-    B = n[..., 1] / fy
-    C = n[..., 2] - A * cx - B * cy
-    s = np.hypot(A, B)
-    theta = np.arctan2(B, A)  # (-pi, pi]
-    rho = -C / np.where(s == 0, 1.0, s)
-    flip = (theta < 0) | (theta >= np.pi)
-    theta = np.where(theta < 0, theta + np.pi, np.where(theta >= np.pi, theta - np.pi, theta))
-    rho = np.where(flip, -rho, rho)
-    at_inf = np.any((s < 1e-12 * np.maximum(np.abs(C), 1e-300)) | (s == 0), axis=1)
-    pn = np.sqrt(np.einsum("ni,ni->n", p0, p0))
-    end_on = np.abs(pd) >= _COS_END_ON * np.maximum(pn, 1e-300)
-    valid = ~(inside | at_inf | end_on | (p0[:, 2] <= 0))
-    return rho, theta, valid
+from graphtrack.geometry.se3 import project_to_so3
 
 
 class ParticleFilter:
@@ -195,7 +139,7 @@ class ParticleFilter:
         self.logw = np.full(self.N, -np.log(self.N))
         self.t = 0
         self.x_mean = centre.copy()
-        self.R_mean = rodrigues(centre[None, 3:])[0]
+        self.R_mean = rotations(centre[None, 3:])[:, :, 0]
 
     @property
     def weights(self) -> np.ndarray:
@@ -215,42 +159,17 @@ class ParticleFilter:
 
     # -- projection of every hypothesis -----------------------------------------------
     def _frame_geometry(self, q: np.ndarray):
-        """Shaft axis, markers and marker normals for reading q, mapped by E_0: (3, K).
-
-        Cached for the last q (predicted_lines and step read the same frame)."""
+        """:func:`graphtrack.estimate.pf.projection.frame_geometry` of reading q,
+        cached for the last q (predicted_lines and step read the same frame)."""
         q = np.asarray(q, float)
         key = q.tobytes()
-        if self._geometry_cache is not None and self._geometry_cache[0] == key:
-            return self._geometry_cache[1]
-        out = self._frame_geometry_uncached(q)
-        self._geometry_cache = (key, out)
-        return out
+        if self._geometry_cache is None or self._geometry_cache[0] != key:
+            self._geometry_cache = (key, frame_geometry(self.robot, q, self.E0))
+        return self._geometry_cache[1]
 
-    def _frame_geometry_uncached(self, q: np.ndarray):
-        # only the links carrying the shaft and the markers (cheaper than base_features)
-        L = link_transforms(self.robot, q)
-        sf = self.robot.shaft_features[0]
-        Ts = L[sf.link]
-        p0 = Ts[:3, :3] @ np.asarray(sf.position, float) + Ts[:3, 3]
-        d = Ts[:3, :3] @ np.asarray(sf.direction, float)
-        d = d / np.linalg.norm(d)
-        r = float(sf.radius)
-        feats = self.robot.point_features
-        if feats:
-            Tp = L[[p.link for p in feats]]
-            pos = np.array([p.position for p in feats], float)
-            pts = np.einsum("kij,kj->ki", Tp[:, :3, :3], pos) + Tp[:, :3, 3]
-        else:
-            pts = np.zeros((0, 3))
-        R0, t0 = self.E0[:3, :3], self.E0[:3, 3]
-        rel = pts - p0
-        radial = rel - (rel @ d)[:, None] * d
-        dist = np.linalg.norm(radial, axis=1)
-        on_shaft = np.abs(dist - r) < 0.25 * r
-        normals = np.where(on_shaft[:, None], radial / np.maximum(dist, 1e-12)[:, None], 0.0)
-        V = np.concatenate([(R0 @ p0 + t0)[:, None], (R0 @ d)[:, None],
-                            (pts @ R0.T + t0).T, (normals @ R0.T).T], axis=1)
-        return V, r, on_shaft
+    def _project(self, q: np.ndarray, x: np.ndarray | None = None) -> Hypotheses:
+        x = self.x if x is None else np.atleast_2d(np.asarray(x, float))
+        return project(self._frame_geometry(q), self.K, x)
 
     def hypotheses(self, q: np.ndarray, x: np.ndarray | None = None) -> dict:
         """Project the shaft and markers for every particle (or for states x (n, 6)).
@@ -258,25 +177,10 @@ class ParticleFilter:
         Returns rho, theta (n, 2) px/rad, valid (n,), markers (n, M, 2) px,
         visible (n, M) bool, R (n, 3, 3).
         """
-        x = self.x if x is None else np.atleast_2d(np.asarray(x, float))
-        V, r, on_shaft = self._frame_geometry(q)
-        R = rodrigues(x[:, 3:])
-        W = R @ V  # (n, 3, K)
-        b = x[:, :3]
-        p0 = W[:, :, 0] + b
-        d = W[:, :, 1]
-        rho, theta, valid = limb_lines(p0, d, r, self.K)
-        M = len(on_shaft)
-        pts = W[:, :, 2:2 + M] + b[:, :, None]  # (n, 3, M)
-        z = pts[:, 2]
-        safe = np.where(z > 1e-9, z, 1e-9)
-        u = self.K[0, 0] * pts[:, 0] / safe + self.K[0, 2]
-        v = self.K[1, 1] * pts[:, 1] / safe + self.K[1, 2]
-        normals = W[:, :, 2 + M:]
-        facing = np.einsum("nim,nim->nm", normals, pts) < 0.0
-        visible = (z > 1e-9) & (facing | ~on_shaft[None, :])
-        return dict(rho=rho, theta=theta, valid=valid, markers=np.stack([u, v], -1),
-                    visible=visible, R=R)
+        h = self._project(q, x)
+        return dict(rho=h.rho.T, theta=h.theta.T, valid=h.valid,
+                    markers=np.stack([h.u.T, h.v.T], -1), visible=h.visible.T,
+                    R=np.moveaxis(h.R, -1, 0))
 
     def predicted_lines(self, q: np.ndarray) -> np.ndarray:
         """(2, 2) (rho, theta) of the shaft edges at the current estimate, for a detector's gate."""
@@ -289,22 +193,22 @@ class ParticleFilter:
     # -- the filter step --------------------------------------------------------------
     def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None) -> np.ndarray:
         """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x)."""
-        h = self.hypotheses(q, x)
-        return self._loglik(h, observation)
+        return self._loglik(self._project(q, x), observation)
 
-    def _loglik(self, h: dict, observation) -> np.ndarray:
-        n = len(h["rho"])
+    def _loglik(self, h: Hypotheses, observation) -> np.ndarray:
+        n = len(h.valid)
         ll = np.zeros(n)
         if observation is None:
             return ll
         if observation.has_shaft:
-            ll += om.shaft_loglik(observation, h["rho"], h["theta"], h["valid"],
-                                  _buffers=self._buffers, **self.shaft_options)
+            ll += om.shaft_loglik(observation, h.rho.T, lambda: h.theta.T, h.valid,
+                                  _buffers=self._buffers, cos_sin=(h.cos.T, h.sin.T),
+                                  **self.shaft_options)
         if self.use_markers and len(observation.markers):
-            ll += om.marker_loglik(h["markers"], h["visible"], observation.markers,
-                                   self.marker_gamma, self.marker_gate,
-                                   estimate_index=int(np.argmax(self.logw)) if n == self.N else 0,
-                                   **self.marker_options)
+            ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers,
+                                      self.marker_gamma, self.marker_gate,
+                                      estimate_index=int(np.argmax(self.logw)) if n == self.N else 0,
+                                      **self.marker_options)
         return ll
 
     def step(self, frame: Frame, observation=None) -> Estimate:
@@ -312,7 +216,7 @@ class ParticleFilter:
         if self.t > 0:
             self.predict()
         self.t += 1
-        h = self.hypotheses(q)
+        h = self._project(q)
         informative = observation is not None and (
             observation.has_shaft or (self.use_markers and len(observation.markers)))
         if informative:
@@ -321,7 +225,7 @@ class ParticleFilter:
         ess = effective_sample_size(w)
         # estimate: weighted mean of b, chordal mean of R(w)
         self.x_mean = w @ self.x
-        self.R_mean = average_rotations(h["R"], w)
+        self.R_mean = project_to_so3((h.R.reshape(9, -1) @ w).reshape(3, 3))
         dx = self.x - self.x_mean
         cov = (dx * w[:, None]).T @ dx
         est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,

@@ -155,8 +155,12 @@ def average_rotations(R: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     """
     R = np.asarray(R, dtype=float)
     w = np.ones(len(R)) if weights is None else np.asarray(weights, dtype=float)
-    M = np.einsum("n,nij->ij", w, R)
-    U, _, Vt = np.linalg.svd(M)
+    return project_to_so3(np.einsum("n,nij->ij", w, R))
+
+
+def project_to_so3(M: np.ndarray) -> np.ndarray:
+    """The rotation nearest a 3x3 matrix M in Frobenius norm: U diag(1, 1, det(U V^T)) V^T."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
     return U @ D @ Vt
 

@@ -12,6 +12,8 @@ over the (few) joints, never over the leading axes.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from graphtrack.errors import InputError
@@ -44,6 +46,8 @@ def joint_transform(joint, qi: np.ndarray) -> np.ndarray:
 def link_transforms(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
     """base_T_link for links 0..n_links: (..., n_links + 1, 4, 4); link 0 is the base."""
     q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        return _single_link_transforms(robot, q)
     lead = q.shape[:-1]
     out = np.empty(lead + (robot.n_links + 1, 4, 4))
     T = np.broadcast_to(np.eye(4), lead + (4, 4)).copy()
@@ -55,4 +59,38 @@ def link_transforms(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
         j = q[..., robot.n_dh]
         out[..., robot.n_dh + 1, :, :] = T @ rot_z(j / 2.0)
         out[..., robot.n_dh + 2, :, :] = T @ rot_z(-j / 2.0)
+    return out
+
+
+def dh_matrix(alpha: float, A: float, theta: float, D: float) -> np.ndarray:
+    """RotX(alpha) TransX(A) RotZ(theta) TransZ(D) multiplied out (one joint, scalars)::
+
+        [[ ct,     -st,      0,   A      ],
+         [ st ca,   ct ca,  -sa, -sa D   ],
+         [ st sa,   ct sa,   ca,  ca D   ],
+         [ 0,       0,       0,   1      ]]
+    """
+    ca, sa, ct, st = math.cos(alpha), math.sin(alpha), math.cos(theta), math.sin(theta)
+    return np.array([[ct, -st, 0.0, A], [st * ca, ct * ca, -sa, -sa * D],
+                     [st * sa, ct * sa, ca, ca * D], [0.0, 0.0, 0.0, 1.0]])
+
+
+def _single_link_transforms(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
+    """:func:`link_transforms` for ONE joint vector (n_joints,), with the closed-form
+    joint matrices (the particle filter calls this once per frame: ~10x fewer numpy calls)."""
+    out = np.empty((robot.n_links + 1, 4, 4))
+    T = np.eye(4)
+    out[0] = T
+    for i, j in enumerate(robot.dh):
+        qi = float(q[i])
+        if j.type == "revolute":
+            Ti = dh_matrix(j.alpha, j.A, j.theta + j.offset + qi, j.D)
+        else:
+            Ti = dh_matrix(j.alpha, j.A, j.theta, j.D + j.offset + qi)
+        T = T @ Ti
+        out[i + 1] = T
+    if robot.has_gripper:
+        h = 0.5 * float(q[robot.n_dh])
+        out[robot.n_dh + 1] = T @ dh_matrix(0.0, 0.0, h, 0.0)
+        out[robot.n_dh + 2] = T @ dh_matrix(0.0, 0.0, -h, 0.0)
     return out
