@@ -4,11 +4,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.limb import ShaftAxis
+from factors.limb import ShaftAxis, limb_lines
 from factors.line_parameter import LineParameterError, line_parameter_factor
 from factors.marker import MarkerError, marker_factor
 from factors.robust import make_kernel
-from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
+from factors.shaft_pixels import LimbPairing, ShaftPixelsError, shaft_pixels_factor
 from factors.synthetic import sequence
 from graphtrack.robot.features import base_features
 
@@ -53,6 +53,38 @@ def test_shaft_pixels_jacobian(scene, kernel):
             assert e.shape == (len(f.pixels[i]),)
         fn.evaluate(f.E_true)
         assert fn.limb == i          # assigned to its own projected edge
+
+
+def test_pairing_gives_the_two_edges_different_limbs(scene):
+    """Shift E sideways by ~0.7 shaft widths: both pixel sets are then nearer the
+    same projected limb; alone each takes it, paired they take one limb each (the
+    cheaper pairing), and the Jacobians still match central differences."""
+    robot, cam, E0, f, F, axis = scene
+    from graphtrack.geometry.cylinder import project_cylinder
+    from graphtrack.geometry.se3 import bw_to_matrix
+
+    Ft = F.transformed(f.E_true)
+    rho, theta, _ = project_cylinder(Ft.shaft_p0[0], Ft.shaft_d[0], Ft.shaft_r[0], cam.K)
+    width = abs(rho[0] - rho[1])
+    n = np.array([np.cos(theta[0]), np.sin(theta[0]), 0.0])
+    depth = Ft.shaft_p0[0][2]
+    E = bw_to_matrix(np.r_[0.7 * width * depth / cam.K[0, 0] * n, 0, 0, 0]) @ f.E_true
+    alone = [ShaftPixelsError(f.pixels[i], axis, cam.K, 1.5, "huber") for i in range(2)]
+    for fn in alone:
+        fn.evaluate(E, False)
+    assert alone[0].limb == alone[1].limb
+    pairing = LimbPairing()
+    paired = [ShaftPixelsError(f.pixels[i], axis, cam.K, 1.5, "huber", pairing) for i in range(2)]
+    for fn in paired:
+        check(fn, gtsam.Pose3(E), tol=2e-6)
+    assert {paired[0].limb, paired[1].limb} == {0, 1}
+    L = limb_lines(E, axis, paired[0].M, False)[0]
+    cost = [fn.costs(L) for fn in paired]
+    chosen = cost[0][paired[0].limb] + cost[1][paired[1].limb]
+    assert chosen <= cost[0][1 - paired[0].limb] + cost[1][1 - paired[1].limb]
+    for fn in paired:                     # at the truth each set keeps its own limb
+        fn.evaluate(f.E_true, False)
+    assert [fn.limb for fn in paired] == [0, 1]
 
 
 def test_line_parameter_jacobian_and_wrap(scene):

@@ -22,7 +22,7 @@ from factors.limb import ShaftAxis
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
-from factors.shaft_pixels import shaft_pixels_factor
+from factors.shaft_pixels import LimbPairing, shaft_pixels_factor
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.robot.features import base_features
 
@@ -121,7 +121,15 @@ class FactorOptions:
 
 def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
                   opts: FactorOptions, model: str | None = None) -> list:
-    """The measurement factors of frame k (may be empty: no detections).
+    """The measurement factors of frame k (may be empty: no detections):
+    :func:`frame_factor_groups`' shaft factors, then its marker factors."""
+    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, model)
+    return shaft + markers
+
+
+def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
+                        opts: FactorOptions, model: str | None = None) -> tuple[list, list]:
+    """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
     edge; polar models: one :func:`factors.line_parameter.line_parameter_factor`
@@ -130,12 +138,12 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
     kinematics of this frame's readings q (fixed data).
     """
     if observation is None:
-        return []
+        return [], []
     out = []
     has_shaft = observation.has_shaft
     want_markers = opts.markers and len(observation.markers) > 0
     if not has_shaft and not want_markers:
-        return out
+        return out, []
     F = base_features(robot, np.asarray(q, float))
     kern = opts.kernel
     x = key(k)
@@ -148,15 +156,17 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
                     out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
                                                      opts.line_sigma_theta, kern))
         else:
-            for px in observation.pixels:
-                px = np.asarray(px, float).reshape(-1, 2)
-                px = px[np.all(np.isfinite(px), axis=1)]
+            sets = [np.asarray(px, float).reshape(-1, 2) for px in observation.pixels]
+            sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]
+            sets = [px for px in sets if len(px)]
+            pairing = LimbPairing() if len(sets) > 1 else None
+            for px in sets:
                 if opts.max_pixels and len(px) > opts.max_pixels:
                     px = px[np.linspace(0, len(px) - 1, opts.max_pixels).astype(int)]
                 sigma = opts.pixel_sigma
                 if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
                     sigma *= np.sqrt(len(px) / opts.pixel_effective_count)  # m pixels ~ n_eff
-                f = shaft_pixels_factor(x, px, axis, K, sigma, kern)
+                f = shaft_pixels_factor(x, px, axis, K, sigma, kern, pairing)
                 if f is not None:
                     out.append(f)
     if want_markers and len(F.points):
@@ -164,8 +174,8 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
         mk = mk[np.all(np.isfinite(mk), axis=1)]
         f = marker_factor(x, mk, F.points, K, opts.marker_sigma, opts.marker_gate, kern)
         if f is not None:
-            out.append(f)
-    return out
+            return out, [f]
+    return out, []
 
 
 def split_options(options: dict) -> tuple[FactorOptions, dict]:
