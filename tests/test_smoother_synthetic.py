@@ -114,6 +114,21 @@ def test_start_up_from_large_hand_eye_errors(seed):
     assert np.linalg.norm(errs[-1][:3]) < 1.5e-3 and np.degrees(np.linalg.norm(errs[-1][3:])) < 0.8, errs[-1]
 
 
+def test_markers_wait_for_the_shaft_at_start_up():
+    """Marker-only frames before any shaft detection are held back (their association
+    at the prior is not trusted): E stays at the prior until the shaft is seen, or
+    until start_up_wait frames have passed."""
+    robot, cam, E0, frames = sequence(12, seed=4, scene=SCENE, pixel_noise=1.0, marker_noise=1.0)
+    for wait, moved_at in ((30, 5), (3, 3)):
+        est = make_estimator("smoother", TrackingContext(robot, cam, E0), start_up_wait=wait)
+        for f in frames:
+            obs = (Observation("line-intensities", markers=f.markers) if f.index < 5
+                   else Observation("line-intensities", pixels=f.pixels, markers=f.markers))
+            e = est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), obs)
+            moved = not np.allclose(e.E, E0, atol=1e-9)
+            assert moved == (f.index >= moved_at), (wait, f.index)
+
+
 def test_batch_refines_whole_recording():
     frames, out, errs = run("batch", 150, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5, marker_noise=2.0,
                             pixels_per_edge=150)

@@ -103,8 +103,11 @@ class Detector(Protocol):
 
     name: str
 
-    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None) -> Detection:
+    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None,
+               association=None) -> Detection:
         """image: undistorted BGR uint8 (H, W, 3). predicted_lines: (2, 2)
         (rho, theta) of the shaft edges projected from the current estimate of
-        E, used to gate the association (None: no gate)."""
+        E, used to gate the association (None: no gate); association: an
+        :class:`graphtrack.detect.association.AssociationConfig` overriding the
+        detector's gates for this call."""
         ...  # pragma: no cover - protocol

@@ -138,6 +138,11 @@ class CannyDetector:
             raise TypeError(f"CannyDetector: unknown option(s) {', '.join(unknown)}")
         self.config = replace(cfg, **overrides)
 
+    @property
+    def association(self) -> AssociationConfig:
+        """The configured association gates (as on the other detectors)."""
+        return self.config.association
+
     # -- stages -------------------------------------------------------------------
     def edges(self, gray: np.ndarray, s: float):
         """Canny edge map and Sobel gradients of the (downscaled) grey image."""

@@ -271,7 +271,10 @@ class LearnedDetector:
             y = torch.sigmoid(self.net(x))[0].numpy()
         return y[0], y[1]
 
-    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None) -> Detection:
+    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None,
+               association: AssociationConfig | None = None) -> Detection:
+        """Detect on an undistorted BGR uint8 frame; ``predicted_lines`` (2, 2) gate the
+        association, ``association`` overrides the configured gates for this call."""
         t0 = time.perf_counter()
         img = np.asarray(image)
         markers = np.zeros((0, 2))
@@ -296,7 +299,7 @@ class LearnedDetector:
         if len(seg):
             rho, theta = line_through(seg[:, :2], seg[:, 2:])
             lines = np.stack([rho, theta], 1)
-            assoc = associate(lines, seg, predicted_lines, self.association)
+            assoc = associate(lines, seg, predicted_lines, association or self.association)
             det.shaft_segments = assoc.segments
             det.shaft_lines = assoc.lines
             det.edge_ids = assoc.edge_ids

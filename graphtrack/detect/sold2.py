@@ -85,7 +85,10 @@ class Sold2Detector:
         self.association = association or AssociationConfig()
         self.marker_config = marker_config
 
-    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None) -> Detection:
+    def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None,
+               association: AssociationConfig | None = None) -> Detection:
+        """Detect on an undistorted BGR uint8 frame; ``predicted_lines`` (2, 2) gate the
+        association, ``association`` overrides the configured gates for this call."""
         import torch
 
         t0 = time.perf_counter()
@@ -123,7 +126,7 @@ class Sold2Detector:
             keep = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1]) > 0
             seg, lines = seg[keep], np.stack([rho, theta], 1)[keep]
             det.segments = seg
-            a = associate(lines, seg, predicted_lines, self.association)
+            a = associate(lines, seg, predicted_lines, association or self.association)
             det.shaft_segments, det.shaft_lines, det.edge_ids = a.segments, a.lines, a.edge_ids
         det.ms = (time.perf_counter() - t0) * 1e3
         return det

@@ -15,6 +15,10 @@ Start-up: the first frame with detections gets its initial value from
 Levenberg-Marquardt on that frame alone (its factors + the prior at the
 current estimate), in two stages: the shaft factors first, then with the
 markers, whose association is only trustworthy once the shaft lines agree.
+Until then marker detections are held back (up to ``start_up_wait`` frames
+without shaft detections): two markers associated at a prior 40-50 px off
+can take the wrong pair (a tuning recording started on such a frame and
+stayed 200 px off).
 iSAM2's undamped Gauss-Newton steps from a hand-eye error of several mm and
 degrees overshoot (every pixel in the robust kernel's tail) into a wrong
 marker association and run away. On synthetic runs with hand-eye errors drawn
@@ -60,7 +64,8 @@ class FixedLagSmootherEstimator:
     Options: observation (model name, used when an Observation carries none),
     lag (s), smoother ("isam2" | "batch"), markers, prior_sigma_b/_w,
     start_up (the LM initialisation of the first frame with detections),
-    start_up_iterations,
+    start_up_iterations, start_up_wait (frames of markers-only detections held
+    back before starting without the shaft),
     motion_sigma_b/_w (per frame), iterations (extra iSAM2 passes per frame
     while the newest state still moves more than ``converge_tol``),
     relinearize_threshold, fps (stamps fallback), covariance (compute the
@@ -80,7 +85,7 @@ class FixedLagSmootherEstimator:
                  iterations: int = 1, converge_tol: float = 1e-4,
                  relinearize_threshold: float = 1e-2, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
-                 **options):
+                 start_up_wait: int = 30, **options):
         import gtsam
 
         self.gtsam = gtsam
@@ -111,6 +116,8 @@ class FixedLagSmootherEstimator:
         self.k = -1
         self.started = not start_up
         self.start_up_iterations = int(start_up_iterations)
+        self.start_up_wait = int(start_up_wait)
+        self.waited = 0
         self.last = gtsam.Pose3(self.E0)
         self.t0 = None
         self.last_stamp = None
@@ -181,11 +188,15 @@ class FixedLagSmootherEstimator:
             graph.add(gtsam.BetweenFactorPose3(key(k - 1), x, gtsam.Pose3(), self.motion_noise))
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
                                              self.fopts, self.model)
+        if not self.started:
+            if markers and not shaft and self.waited < self.start_up_wait:
+                markers = []          # no marker association before the shaft has been seen
+                self.waited += 1
+            if shaft or markers:
+                self.last = self._start_up(x, shaft, markers)
+                self.started = True
         for f in shaft + markers:
             graph.add(f)
-        if (shaft or markers) and not self.started:
-            self.last = self._start_up(x, shaft, markers)
-            self.started = True
         values.insert(x, self.last)
         stamps.insert((x, self._stamp(frame)))
         self.smoother.update(graph, values, stamps)
