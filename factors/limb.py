@@ -24,6 +24,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 
 def skew3(a: np.ndarray) -> np.ndarray:
@@ -104,3 +105,39 @@ def limb_lines(E: np.ndarray, axis: ShaftAxis, M: np.ndarray, jacobian: bool = T
     dn = -(pxn[:, :, None] * ndc[:, None, :] + nxc[:, :, None] * ndp[:, None, :]) / det[:, None, None]
     dL = np.einsum("ij,kjl->kil", M, dn)                       # (2, 3, 6)
     return L, dL, True
+
+
+class LimbPairing:
+    """The limb assignment shared by one frame's shaft factors (one E): the
+    pixel sets of :mod:`factors.shaft_pixels` or the detected lines of
+    :mod:`factors.line_parameter`, each a member with ``costs(L)`` -> (2,),
+    its cost against either limb of L (2, 3).
+
+    ``limbs(E, L)`` gives the limb (0 / 1) of every member: the injective
+    assignment of members to the two limbs with the least total cost (with
+    more than two members, the two best-placed take the limbs injectively and
+    the others their nearer limb). Two detected shaft edges are two different
+    limbs; left to choose alone, both take the nearer one whenever E is off
+    by more than half the shaft's image width. Cached for the last E, so the
+    frame's factors, evaluated at the same E, decide together once."""
+
+    def __init__(self):
+        self.members: list = []
+        self._key = None
+        self._limbs: list[int] = []
+
+    def add(self, member) -> int:
+        self.members.append(member)
+        return len(self.members) - 1
+
+    def limbs(self, E: np.ndarray, L: np.ndarray) -> list[int]:
+        key = E.tobytes()
+        if key != self._key:
+            C = np.array([m.costs(L) for m in self.members])        # (k, 2)
+            limbs = [int(np.argmin(c)) for c in C]
+            if len(C) >= 2:
+                rows, cols = linear_sum_assignment(C)
+                for r, c in zip(rows, cols):
+                    limbs[r] = int(c)
+            self._key, self._limbs = key, limbs
+        return self._limbs

@@ -12,7 +12,9 @@ the residual is the wrapped line difference (:func:`graphtrack.geometry.lines.li
 where the detected line is taken in whichever of its two representations
 (rho_d, theta_d) / (-rho_d, theta_d + pi) is nearer in angle (so the wrap
 never produces a 2 pi / sign jump), and the nearer projected limb (in the
-whitened metric) is used, re-chosen at every evaluation. Analytic Jacobian:
+whitened metric) is used, re-chosen at every evaluation; with the frame's
+other detected line (a shared :class:`factors.limb.LimbPairing`) the two take
+different limbs, the pairing with the smaller total whitened cost. Analytic Jacobian:
 
     d theta/dL = (-B, A, 0)/s^2,   d rho/dL = (C A/s^3, C B/s^3, -1/s)
 
@@ -25,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from factors.limb import ShaftAxis, limb_lines, line_matrix
+from factors.limb import LimbPairing, ShaftAxis, limb_lines, line_matrix
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 from graphtrack.geometry.lines import line_difference
@@ -33,12 +35,24 @@ from graphtrack.geometry.lines import line_difference
 
 class LineParameterError(PoseErrorFunction):
     def __init__(self, line: np.ndarray, axis: ShaftAxis, K: np.ndarray,
-                 sigma_rho: float = 3.0, sigma_theta: float = 0.01):
+                 sigma_rho: float = 3.0, sigma_theta: float = 0.01, pairing: LimbPairing | None = None):
         self.rho_d, self.theta_d = (float(v) for v in np.asarray(line, float).ravel()[:2])
         self.axis = axis
         self.M = line_matrix(np.asarray(K, float))
         self.sig = np.array([sigma_rho, sigma_theta], float)
         self.limb = -1
+        self.pairing = pairing
+        self.slot = pairing.add(self) if pairing is not None else -1
+
+    def _differences(self, L: np.ndarray):
+        A, B, C = L[:, 0], L[:, 1], L[:, 2]
+        s = np.hypot(A, B)
+        return line_difference(-C / s, np.arctan2(B, A), self.rho_d, self.theta_d)
+
+    def costs(self, L: np.ndarray) -> np.ndarray:
+        """Whitened squared difference (2,) of the detected line to each limb of L (2, 3)."""
+        drho, dth = self._differences(L)
+        return (drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         """Unwhitened residual (d_rho px, d_theta rad) and its (2, 6) Jacobian."""
@@ -48,11 +62,11 @@ class LineParameterError(PoseErrorFunction):
             return np.zeros(2), (np.zeros((2, 6)) if jacobian else None)
         A, B, C = L[:, 0], L[:, 1], L[:, 2]
         s = np.hypot(A, B)
-        theta = np.arctan2(B, A)
-        rho = -C / s
-        drho, dth = line_difference(rho, theta, self.rho_d, self.theta_d)
-        w = (drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2
-        i = int(np.argmin(w))
+        drho, dth = self._differences(L)
+        if self.pairing is not None:
+            i = self.pairing.limbs(E, L)[self.slot]
+        else:
+            i = int(np.argmin((drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2))
         self.limb = i
         r = np.array([drho[i], dth[i]])
         if not jacobian:
@@ -66,10 +80,12 @@ class LineParameterError(PoseErrorFunction):
 
 
 def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,
-                          sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy"):
-    """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta)."""
+                          sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy",
+                          pairing: LimbPairing | None = None):
+    """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta);
+    ``pairing``: the frame's :class:`factors.limb.LimbPairing` (None: nearer limb)."""
     import gtsam
 
-    fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta)
+    fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta, pairing)
     noise = make_kernel(kernel).gtsam_noise(gtsam.noiseModel.Diagonal.Sigmas(fn.sig))
     return gtsam.CustomFactor(noise, [key], fn)

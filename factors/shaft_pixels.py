@@ -34,9 +34,8 @@ the factor then says nothing and the graph stays solvable.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from factors.limb import ShaftAxis, limb_lines, line_matrix
+from factors.limb import LimbPairing, ShaftAxis, limb_lines, line_matrix
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 
@@ -45,7 +44,7 @@ class ShaftPixelsError(PoseErrorFunction):
     """Typed error function of one edge's pixel set (call it like GTSAM does)."""
 
     def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
-                 kernel: RobustKernel | str | None = "cauchy", pairing: "LimbPairing | None" = None):
+                 kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None):
         self.pixels = np.asarray(pixels, float).reshape(-1, 2)
         self.h = np.hstack([self.pixels, np.ones((len(self.pixels), 1))])  # (m, 3)
         self.axis = axis
@@ -92,37 +91,6 @@ class ShaftPixelsError(PoseErrorFunction):
         J = self.h @ dLi - zi[:, None] * (self.sigma * (ab0 @ dLi))[None, :]
         return self.kernel.apply_scalar(zi, J)
 
-
-
-class LimbPairing:
-    """The limb assignment shared by the pixel-set factors of one frame (one E).
-
-    ``limbs(E, L)`` gives the limb (0 / 1) of every member set: the injective
-    assignment of sets to the two limbs L (2, 3) with the least total robust
-    cost (with more than two sets, the two best-placed take the limbs
-    injectively and the others their nearer limb). Cached for the last E, so
-    the frame's factors, evaluated at the same E, decide together once."""
-
-    def __init__(self):
-        self.members: list[ShaftPixelsError] = []
-        self._key = None
-        self._limbs: list[int] = []
-
-    def add(self, member: "ShaftPixelsError") -> int:
-        self.members.append(member)
-        return len(self.members) - 1
-
-    def limbs(self, E: np.ndarray, L: np.ndarray) -> list[int]:
-        key = E.tobytes()
-        if key != self._key:
-            C = np.array([m.costs(L) for m in self.members])        # (k, 2)
-            limbs = [int(np.argmin(c)) for c in C]
-            if len(C) >= 2:
-                rows, cols = linear_sum_assignment(C)
-                for r, c in zip(rows, cols):
-                    limbs[r] = int(c)
-            self._key, self._limbs = key, limbs
-        return self._limbs
 
 
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,

@@ -116,3 +116,23 @@ def test_scale_observation_maps_lines_and_points_consistently():
     np.testing.assert_allclose(big.markers, (pts[:3] + 0.5) * 2 - 0.5)
     back = scale_observation(big, 0.5)
     np.testing.assert_allclose(back.lines, obs.lines, atol=1e-12)
+
+
+def test_endpoint_polar_needs_both_endpoint_discs():
+    """A heatmap that fades before one end leaves one endpoint disc empty: the edge
+    is left out of endpoint-intensities-polar (one ~20 px blob fixes no angle), but
+    its pixels still count for endpoint-intensities."""
+    seg = np.array([[100.0, 400.0, 500.0, 150.0]])
+    from graphtrack.geometry.lines import line_through
+    rho, th = line_through(seg[0, :2], seg[0, 2:])
+    H = np.zeros((480, 640), np.float32)
+    yy, xx = np.mgrid[0:480, 0:640]
+    near = np.abs(np.cos(th) * xx + np.sin(th) * yy - rho) <= 2.0
+    H[near & (xx < 300)] = 1.0                      # the line only near the first endpoint
+    det = Detection(shaft_segments=seg, shaft_lines=np.array([[rho, th]]), heatmap=H,
+                    edge_ids=np.array([0]))
+    assert len(make_observation(det, "endpoint-intensities-polar").lines) == 0
+    assert len(make_observation(det, "endpoint-intensities").pixels) == 1
+    H[near] = 1.0                                   # both ends: the edge's line
+    line = make_observation(det, "endpoint-intensities-polar").lines
+    assert len(line) == 1 and abs(line[0, 1] - th) < 0.02

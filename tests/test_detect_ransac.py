@@ -76,3 +76,19 @@ def test_small_and_degenerate_sets():
     assert line is None and n == 0          # identical pixels define no line
     lines, counts = sequential_ransac(np.array([[np.nan, 1.0], [0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]))
     assert len(lines) == 1 and counts[0] == 3
+
+
+def test_groups_make_samples_span_two_endpoint_discs():
+    """Two filled discs (radius 10 px, integer pixels, as E_e of a thick heatmap) at
+    the ends of a 400 px edge, the second sparse: with the discs as groups every
+    hypothesis spans the edge and the best line is the edge through both."""
+    theta = 2.07
+    n, d = np.array([np.cos(theta), np.sin(theta)]), np.array([-np.sin(theta), np.cos(theta)])
+    ends = [np.array([300.0, 300.0]), np.array([300.0, 300.0]) + 400 * d]
+    yy, xx = np.mgrid[-10:11, -10:11]
+    disc = np.stack([xx.ravel(), yy.ravel()], 1)[(xx ** 2 + yy ** 2).ravel() <= 100]
+    pts = np.concatenate([np.round(ends[0]) + disc, np.round(ends[1]) + disc[::5]])
+    groups = np.repeat([0, 1], [len(disc), len(disc[::5])])
+    rho = float(n @ (np.round(ends[0]) + np.round(ends[1])) / 2)
+    spanning, _ = best_line(pts, rng=0, groups=groups)
+    assert abs(line_difference(spanning[0], spanning[1], rho, theta)[1]) < 0.02

@@ -4,11 +4,11 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.limb import ShaftAxis, limb_lines
+from factors.limb import LimbPairing, ShaftAxis, limb_lines
 from factors.line_parameter import LineParameterError, line_parameter_factor
 from factors.marker import MarkerError, marker_factor
 from factors.robust import make_kernel
-from factors.shaft_pixels import LimbPairing, ShaftPixelsError, shaft_pixels_factor
+from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from factors.synthetic import sequence
 from graphtrack.robot.features import base_features
 
@@ -56,9 +56,10 @@ def test_shaft_pixels_jacobian(scene, kernel):
 
 
 def test_pairing_gives_the_two_edges_different_limbs(scene):
-    """Shift E sideways by ~0.7 shaft widths: both pixel sets are then nearer the
-    same projected limb; alone each takes it, paired they take one limb each (the
-    cheaper pairing), and the Jacobians still match central differences."""
+    """Shift E sideways by ~0.7 shaft widths: both pixel sets (and both detected
+    lines) are then nearer the same projected limb; alone each takes it, paired
+    they take one limb each (the cheaper pairing), and the Jacobians still
+    match central differences."""
     robot, cam, E0, f, F, axis = scene
     from graphtrack.geometry.cylinder import project_cylinder
     from graphtrack.geometry.se3 import bw_to_matrix
@@ -85,6 +86,16 @@ def test_pairing_gives_the_two_edges_different_limbs(scene):
     for fn in paired:                     # at the truth each set keeps its own limb
         fn.evaluate(f.E_true, False)
     assert [fn.limb for fn in paired] == [0, 1]
+    # the same for the two detected lines of the polar models
+    lone = [LineParameterError(f.lines[i], axis, cam.K) for i in range(2)]
+    for fn in lone:
+        fn.evaluate(E, False)
+    assert lone[0].limb == lone[1].limb
+    pairing = LimbPairing()
+    lines = [LineParameterError(f.lines[i], axis, cam.K, pairing=pairing) for i in range(2)]
+    for fn in lines:
+        check(fn, gtsam.Pose3(E))
+    assert {lines[0].limb, lines[1].limb} == {0, 1}
 
 
 def test_line_parameter_jacobian_and_wrap(scene):

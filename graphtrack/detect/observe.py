@@ -12,7 +12,10 @@ model                                 per detected edge i
 ``endpoints-polar``                   the line through e^a_i and e^b_i (the
                                       alpha = 0 limit of the sets)
 ``endpoint-intensities-polar``        best sequential-RANSAC line of
-                                      E_e(e^a_i) U E_e(e^b_i)
+                                      E_e(e^a_i) U E_e(e^b_i), each sample
+                                      spanning the two discs (an edge with
+                                      fewer than 2 pixels in a disc is left
+                                      out)
 ``line-intensities-polar``            best sequential-RANSAC line of
                                       E_l(e^a_i, e^b_i)
 ``endpoint-intensities``              the pixels E_e(e^a_i) U E_e(e^b_i)
@@ -107,8 +110,15 @@ def make_observation(detection: Detection, model: str, alpha: float = ALPHA, bet
     if model.endswith("-polar"):
         gen = _rng(rng)
         lines, kept = [], []
-        for eid, pts in zip(ids, sets):
-            line, _ = best_line(pts, ransac, gen)
+        for eid, pts, seg in zip(ids, sets, segs):
+            # E_e: label each pixel by its endpoint disc, so that samples span the edge
+            groups = None
+            if endpoint:
+                groups = (np.sum((pts - seg[:2]) ** 2, axis=1) > np.sum((pts - seg[2:4]) ** 2, axis=1)
+                          ).astype(int)
+                if min(np.sum(groups == 0), np.sum(groups == 1)) < 2:
+                    continue  # one disc alone (a ~20 px blob) does not fix the edge's angle
+            line, _ = best_line(pts, ransac, gen, groups)
             if line is not None:
                 lines.append(line)
                 kept.append(eid)

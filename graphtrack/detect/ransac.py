@@ -18,6 +18,14 @@ the points not yet explained: draw ``trials`` = 100 random minimal sets of
 0.75 px, keep the trial with most inliers, refit it by TLS on its inliers,
 record (rho, theta) and the inlier count, and remove those inliers. All trials
 of an iteration are evaluated at once (a (trials, points) residual matrix).
+
+With ``groups`` (a 0 / 1 label per point: the two endpoint discs of E_e), each
+sample takes its first pixel from group 0 and its second from group 1 while
+both have points left, so every hypothesis spans the edge: a line fitted
+inside one ~20 px disc follows the pixel lattice instead (on a tuning
+recording, where one disc was empty, the endpoint-intensities-polar lines came
+out at exactly theta = 3 pi / 4, 20-40 deg off the edge;
+:mod:`graphtrack.detect.observe` now leaves such an edge out).
 """
 from __future__ import annotations
 
@@ -82,18 +90,21 @@ def _residuals(points: np.ndarray, rho: np.ndarray, theta: np.ndarray) -> np.nda
 
 
 def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
-                      rng=None) -> tuple[np.ndarray, np.ndarray]:
+                      rng=None, groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Sequential RANSAC lines in a pixel set.
 
     points: (P, 2) pixel coordinates (x, y); rng: a numpy Generator or a seed
-    (None: seed 0, so results are reproducible by default).
+    (None: seed 0, so results are reproducible by default); groups: (P,) 0 / 1
+    labels, samples span both groups (module docstring).
     Returns lines (L, 2) canonical (rho, theta) and inlier counts (L,) int,
     L <= config.iterations, in extraction order.
     """
     cfg = config or RansacConfig()
     gen = _rng(rng)
     pts = np.asarray(points, float).reshape(-1, 2)
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    fin = np.all(np.isfinite(pts), axis=1)
+    pts = pts[fin]
+    grp = None if groups is None else np.asarray(groups).reshape(-1)[fin]
     lines, counts = [], []
     if len(pts) == 0:
         return np.zeros((0, 2)), np.zeros(0, dtype=int)
@@ -105,6 +116,11 @@ def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
         if P < max(k, cfg.min_inliers):
             break
         idx = gen.integers(0, P, size=(int(cfg.trials), k))
+        if grp is not None:
+            g0, g1 = np.flatnonzero(grp == 0), np.flatnonzero(grp == 1)
+            if len(g0) and len(g1):  # first pixel from one endpoint disc, second from the other
+                idx[:, 0] = g0[gen.integers(0, len(g0), int(cfg.trials))]
+                idx[:, 1] = g1[gen.integers(0, len(g1), int(cfg.trials))]
         s = remaining[idx]                                   # (T, k, 2)
         c = s.mean(1, keepdims=True)
         q = s - c
@@ -134,6 +150,8 @@ def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
         lines.append(line)
         counts.append(int(mask.sum()))
         remaining = remaining[~mask]
+        if grp is not None:
+            grp = grp[~mask]
     if not lines:
         return np.zeros((0, 2)), np.zeros(0, dtype=int)
     L = np.array(lines)
@@ -143,10 +161,10 @@ def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
 
 
 def best_line(points: np.ndarray, config: RansacConfig | None = None,
-              rng=None) -> tuple[np.ndarray | None, int]:
+              rng=None, groups: np.ndarray | None = None) -> tuple[np.ndarray | None, int]:
     """The sequential-RANSAC line with the most inliers: ((rho, theta), count),
     or (None, 0) when the set holds too few pixels for any line."""
-    lines, counts = sequential_ransac(points, config, rng)
+    lines, counts = sequential_ransac(points, config, rng, groups)
     if len(lines) == 0:
         return None, 0
     i = int(np.argmax(counts))

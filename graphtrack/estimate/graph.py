@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.limb import ShaftAxis
+from factors.limb import LimbPairing, ShaftAxis
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
-from factors.shaft_pixels import LimbPairing, shaft_pixels_factor
+from factors.shaft_pixels import shaft_pixels_factor
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.robot.features import base_features
 
@@ -151,10 +151,12 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
         if model in POLAR_MODELS or (len(observation.lines) and not observation.pixels):
-            for line in np.asarray(observation.lines, float).reshape(-1, 2):
-                if np.all(np.isfinite(line)):
-                    out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
-                                                     opts.line_sigma_theta, kern))
+            lines = np.asarray(observation.lines, float).reshape(-1, 2)
+            lines = lines[np.all(np.isfinite(lines), axis=1)]
+            pairing = LimbPairing() if len(lines) > 1 else None
+            for line in lines:
+                out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
+                                                 opts.line_sigma_theta, kern, pairing))
         else:
             sets = [np.asarray(px, float).reshape(-1, 2) for px in observation.pixels]
             sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]
