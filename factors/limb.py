@@ -133,11 +133,14 @@ class LimbPairing:
     def limbs(self, E: np.ndarray, L: np.ndarray) -> list[int]:
         key = E.tobytes()
         if key != self._key:
-            C = np.array([m.costs(L) for m in self.members])        # (k, 2)
-            limbs = [int(np.argmin(c)) for c in C]
-            if len(C) >= 2:
-                rows, cols = linear_sum_assignment(C)
-                for r, c in zip(rows, cols):
-                    limbs[r] = int(c)
+            C = [m.costs(L) for m in self.members]                   # k x (2,)
+            if len(C) == 2:  # the usual two edges: the cheaper of the two pairings
+                limbs = [0, 1] if C[0][0] + C[1][1] <= C[0][1] + C[1][0] else [1, 0]
+            else:
+                limbs = [int(np.argmin(c)) for c in C]
+                if len(C) > 2:
+                    rows, cols = linear_sum_assignment(np.array(C))
+                    for r, c in zip(rows, cols):
+                        limbs[r] = int(c)
             self._key, self._limbs = key, limbs
         return self._limbs
