@@ -80,6 +80,7 @@ class Pipeline:
             self.observe = observe
         self.last_E = ctx.handeye.copy()
         self.last_std = None          # nothing known before the first estimate: widest gate
+        self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
         self.rng = np.random.default_rng(options.seed)
         self.scale = options.detect_scale or auto_detect_scale(ctx.camera.width)
         self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
@@ -89,9 +90,17 @@ class Pipeline:
         readings, in the undistorted pixels of the (possibly scaled) detection image."""
         if not self.ctx.robot.shaft_features:
             return None
-        cam = base_features(self.ctx.robot, frame.q).transformed(self.last_E)
-        rho, theta, valid = shaft_lines(cam, self.detect_camera.K)
+        rho, theta, valid = shaft_lines(self._predicted_features(frame), self.detect_camera.K)
         return np.stack([rho, theta], -1) if bool(valid) else None
+
+    def _predicted_features(self, frame: Frame):
+        """This frame's features in the camera frame of the last estimate, computed once
+        per (frame, estimate) for predicted_lines and gate."""
+        c = self._predicted
+        if c is None or c[0] is not frame or c[1] is not self.last_E:
+            c = self._predicted = (frame, self.last_E,
+                                   base_features(self.ctx.robot, frame.q).transformed(self.last_E))
+        return c[2]
 
     def gate(self, frame: Frame):
         """The association gates for this frame, widened with the estimate's uncertainty.
@@ -115,7 +124,7 @@ class Pipeline:
         else:
             if not np.all(np.isfinite(std)):
                 return None
-            z = base_features(self.ctx.robot, frame.q).transformed(self.last_E).shaft_p0[0, 2]
+            z = self._predicted_features(frame).shaft_p0[0, 2]
             f = self.detect_camera.K[0, 0]
             s = f * (np.hypot(std[0], std[1]) / max(z, 1e-3) + np.hypot(std[3], std[4]))
             widest = min(3.0 * s, MAX_GATE_PX * self.scale)
