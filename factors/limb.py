@@ -108,9 +108,10 @@ def limb_lines(E: np.ndarray, axis: ShaftAxis, M: np.ndarray, jacobian: bool = T
 
 
 class LimbPairing:
-    """The limb assignment shared by one frame's shaft factors (one E): the
-    pixel sets of :mod:`factors.shaft_pixels` or the detected lines of
-    :mod:`factors.line_parameter`, each a member with ``costs(L)`` -> (2,),
+    """What one frame's shaft factors (one E, one shaft axis) decide together:
+    the limb lines of E, computed once for all of them, and the limb of each
+    member: the pixel sets of :mod:`factors.shaft_pixels` or the detected
+    lines of :mod:`factors.line_parameter`, each with ``costs(L)`` -> (2,),
     its cost against either limb of L (2, 3).
 
     ``limbs(E, L)`` gives the limb (0 / 1) of every member: the injective
@@ -118,17 +119,26 @@ class LimbPairing:
     more than two members, the two best-placed take the limbs injectively and
     the others their nearer limb). Two detected shaft edges are two different
     limbs; left to choose alone, both take the nearer one whenever E is off
-    by more than half the shaft's image width. Cached for the last E, so the
-    frame's factors, evaluated at the same E, decide together once."""
+    by more than half the shaft's image width. Both are cached for the last E,
+    so the frame's factors, evaluated at the same E, decide together once."""
 
     def __init__(self):
         self.members: list = []
         self._key = None
         self._limbs: list[int] = []
+        self._lines_key = None
+        self._lines = None
 
     def add(self, member) -> int:
         self.members.append(member)
         return len(self.members) - 1
+
+    def lines(self, E: np.ndarray, axis: ShaftAxis, M: np.ndarray, jacobian: bool = True):
+        """:func:`limb_lines` of E, shared by the members (which all carry the frame's axis and M)."""
+        key = E.tobytes()
+        if key != self._lines_key or (jacobian and self._lines[1] is None and self._lines[2]):
+            self._lines_key, self._lines = key, limb_lines(E, axis, M, jacobian)
+        return self._lines
 
     def limbs(self, E: np.ndarray, L: np.ndarray) -> list[int]:
         key = E.tobytes()

@@ -56,7 +56,10 @@ class LineParameterError(PoseErrorFunction):
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         """Unwhitened residual (d_rho px, d_theta rad) and its (2, 6) Jacobian."""
-        L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
+        if self.pairing is not None:
+            L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
+        else:
+            L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1
             return np.zeros(2), (np.zeros((2, 6)) if jacobian else None)

@@ -54,15 +54,19 @@ class ShaftPixelsError(PoseErrorFunction):
         self.limb = -1      # limb used at the last evaluation (0 / 1), -1: degenerate
         self.pairing = pairing
         self.slot = pairing.add(self) if pairing is not None else -1
+        self._zL = self._z = None
 
     @property
     def dim(self) -> int:
         return len(self.pixels)
 
     def whitened(self, L: np.ndarray) -> np.ndarray:
-        """z (m, 2): the whitened residuals of the pixels against both limbs L (2, 3)."""
-        s = np.hypot(L[:, 0], L[:, 1])
-        return (self.h @ L.T) / (s * self.sigma)
+        """z (m, 2): the whitened residuals of the pixels against both limbs L (2, 3)
+        (kept for the last L: the pairing's costs and the evaluation share them)."""
+        if L is not self._zL:
+            s = np.hypot(L[:, 0], L[:, 1])
+            self._zL, self._z = L, (self.h @ L.T) / (s * self.sigma)
+        return self._z
 
     def costs(self, L: np.ndarray) -> np.ndarray:
         """Robust cost (2,) of the pixel set against each limb of L (2, 3)."""
@@ -71,12 +75,15 @@ class ShaftPixelsError(PoseErrorFunction):
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         """Residual e (m,) and de/dxi (m, 6) (None without ``jacobian``) at 4x4 E."""
         m = self.dim
-        L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
+        if self.pairing is not None:
+            L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
+        else:
+            L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1
             return np.zeros(m), (np.zeros((m, 6)) if jacobian else None)
         s = np.hypot(L[:, 0], L[:, 1])                              # (2,)
-        z = (self.h @ L.T) / (s * self.sigma)                       # (m, 2)
+        z = self.whitened(L)                                        # (m, 2)
         if self.pairing is not None:
             i = self.pairing.limbs(E, L)[self.slot]
         else:

@@ -6,18 +6,20 @@ consecutive frames (always, so gaps in the detections stay solvable), and each
 frame's robust detection factors. ``step`` only records the frame's readings
 and observation and returns a provisional estimate (the previous one: E_0 at
 first, or the online smoother's when ``provisional="smoother"``); ``finish``
-runs Levenberg-Marquardt over all frames, initialised from the provisional
-estimates, and returns the refined Estimates with the marginal covariance of
-each E_t in the left (b, w) perturbation (``covariance=True``; computed with
-one sparse block-tridiagonal pass, O(n)).
+runs Levenberg-Marquardt over all frames (:mod:`graphtrack.estimate.lm`,
+gtsam's iteration driven from Python so that the factor callbacks see the
+Values without pybind11 copying it into each one), initialised from the
+provisional estimates, and returns the refined Estimates with the marginal
+covariance of each E_t in the left (b, w) perturbation (``covariance=True``;
+computed with one sparse block-tridiagonal pass, O(n)).
 
 Defaults (measured on 600 synthetic frames, one core): initialised from E_0
-with a relative tolerance of 1e-6, LM took 8 iterations and 10.6 s; initialised
-from the online smoother (``provisional="smoother"``, 1.8 s during ``step``)
-with a relative tolerance of 1e-3 it takes 2 iterations and 3.3 s, ending at
-the same cost to 1.5e-6 relative and the same error (0.11 mm / 0.05 deg). Each
-LM iteration re-linearises every frame's Python factors, so starting near the
-optimum is what makes a 1800-frame refinement fit in ~15 s.
+with a relative tolerance of 1e-6, LM took 8 iterations; initialised from the
+online smoother (``provisional="smoother"``) with a relative tolerance of 1e-3
+it takes 2 iterations, ending at the same cost to 1.5e-6 relative and the
+same error (0.11 mm / 0.05 deg). Each LM iteration re-linearises every
+frame's Python factors, so starting near the optimum is what keeps a
+1800-frame refinement at ~7 s (benchmarks/RESULTS.md).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ import numpy as np
 
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.lm import levenberg_marquardt
 from graphtrack.estimate.graph import (estimate_extra, frame_factors, gaussian_bw, key,
                                        left_from_right_cov, split_options)
 
@@ -47,7 +50,7 @@ class BatchEstimator:
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
                  motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
                  max_iterations: int = 30, relative_tolerance: float = 1e-3,
-                 covariance: bool = True, provisional: str = "smoother", verbose: bool = False, **options):
+                 covariance: bool = True, provisional: str = "smoother", **options):
         import gtsam
 
         self.gtsam = gtsam
@@ -61,7 +64,6 @@ class BatchEstimator:
         self.max_iterations = int(max_iterations)
         self.relative_tolerance = float(relative_tolerance)
         self.covariance = bool(covariance)
-        self.verbose = bool(verbose)
         self.frames: list[tuple[np.ndarray, object]] = []
         self.initial: list[np.ndarray] = []
         self.online = None
@@ -142,21 +144,14 @@ class BatchEstimator:
         return list(P)
 
     def finish(self) -> list[Estimate]:
-        gtsam = self.gtsam
         n = len(self.frames)
         if n == 0:
             return []
         t0 = time.perf_counter()
         graph, values = self.build()
         t1 = time.perf_counter()
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.max_iterations)
-        params.setRelativeErrorTol(self.relative_tolerance)
-        params.setOrderingType("COLAMD")
-        if self.verbose:
-            params.setVerbosityLM("SUMMARY")
-        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-        result = opt.optimize()
+        res = levenberg_marquardt(graph, values, self.max_iterations, self.relative_tolerance)
+        result = res.values
         t2 = time.perf_counter()
         covs = [None] * n
         if self.covariance:
@@ -166,7 +161,7 @@ class BatchEstimator:
                 covs = [None] * n
         t3 = time.perf_counter()
         self.stats = {"build_s": t1 - t0, "optimize_s": t2 - t1, "covariance_s": t3 - t2,
-                      "iterations": float(opt.iterations()), "error": float(graph.error(result))}
+                      "iterations": float(res.iterations), "error": res.error}
         out = []
         for k in range(n):
             E = result.atPose3(key(k)).matrix()
