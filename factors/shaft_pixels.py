@@ -30,6 +30,13 @@ none with the pairing. The cost is the minimum over the assignments,
 continuous in E.
 A degenerate view (``valid`` False) gives a zero residual and zero Jacobian:
 the factor then says nothing and the graph stays solvable.
+
+Tempering (``weight`` w in (0, 1]): the factor's cost is w sum_j rho(z_j),
+i.e. e_j = sqrt(w) g(z_j) (the per-pixel robust kernel still decides on the
+pixel's own sigma). With w = n / m for an m-pixel set the set counts as n
+independent pixels, as the particle filter's ``pixel_effective_count``: a
+detector errs by the whole edge (offset, angle), not pixel by pixel, so its
+pixels' errors are not independent (see FactorOptions).
 """
 from __future__ import annotations
 
@@ -44,7 +51,8 @@ class ShaftPixelsError(PoseErrorFunction):
     """Typed error function of one edge's pixel set (call it like GTSAM does)."""
 
     def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
-                 kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None):
+                 kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None,
+                 weight: float = 1.0):
         self.pixels = np.asarray(pixels, float).reshape(-1, 2)
         self.h = np.hstack([self.pixels, np.ones((len(self.pixels), 1))])  # (m, 3)
         self.axis = axis
@@ -55,6 +63,7 @@ class ShaftPixelsError(PoseErrorFunction):
         self.pairing = pairing
         self.slot = pairing.add(self) if pairing is not None else -1
         self._zL = self._z = None
+        self.sqrt_w = float(np.sqrt(weight))
 
     @property
     def dim(self) -> int:
@@ -70,7 +79,7 @@ class ShaftPixelsError(PoseErrorFunction):
 
     def costs(self, L: np.ndarray) -> np.ndarray:
         """Robust cost (2,) of the pixel set against each limb of L (2, 3)."""
-        return self.kernel.loss(np.abs(self.whitened(L))).sum(axis=0)
+        return self.sqrt_w ** 2 * self.kernel.loss(np.abs(self.whitened(L))).sum(axis=0)
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         """Residual e (m,) and de/dxi (m, 6) (None without ``jacobian``) at 4x4 E."""
@@ -91,28 +100,30 @@ class ShaftPixelsError(PoseErrorFunction):
         self.limb = i
         zi = z[:, i]
         if not jacobian:
-            return self.kernel.apply_scalar(zi, None)[0], None
+            return self.sqrt_w * self.kernel.apply_scalar(zi, None)[0], None
         ab0 = np.array([L[i, 0], L[i, 1], 0.0]) / s[i]
         # dz/dxi = (h - z sigma (A, B, 0)/s)/(s sigma) . dL/dxi, evaluated as h.(dL/s sigma) - z (ab0.dL/s)
         dLi = dL[i] / (s[i] * self.sigma)                            # (3, 6)
         J = self.h @ dLi - zi[:, None] * (self.sigma * (ab0 @ dLi))[None, :]
-        return self.kernel.apply_scalar(zi, J)
+        e, J = self.kernel.apply_scalar(zi, J)
+        return (e, J) if self.sqrt_w == 1.0 else (self.sqrt_w * e, self.sqrt_w * J)
 
 
 
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
                         sigma: float = 1.5, kernel: RobustKernel | str | None = "cauchy",
-                        pairing: LimbPairing | None = None):
+                        pairing: LimbPairing | None = None, weight: float = 1.0):
     """gtsam.CustomFactor on Pose3 ``key`` for one edge's pixels (m, 2); None if empty.
 
     ``pairing``: the frame's :class:`LimbPairing` (shared by its edges' factors),
-    None for the nearer-limb assignment of a lone set. The noise model is unit
+    None for the nearer-limb assignment of a lone set; ``weight``: the tempering
+    w of the set's cost (module docstring). The noise model is unit
     (whitening and the per-pixel robust kernel happen inside the error function)."""
     import gtsam
 
     pixels = np.asarray(pixels, float).reshape(-1, 2)
     if len(pixels) == 0:
         return None
-    fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing)
+    fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing, weight)
     f = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(len(pixels)), [key], fn)
     return f

@@ -55,6 +55,20 @@ def test_shaft_pixels_jacobian(scene, kernel):
         assert fn.limb == i          # assigned to its own projected edge
 
 
+@pytest.mark.parametrize("kernel", ["none", "huber"])
+def test_tempered_pixel_set_scales_the_cost(scene, kernel):
+    """weight w: e = sqrt(w) e_1 and J = sqrt(w) J_1, so the cost is w times the
+    untempered one; the Jacobian still matches central differences."""
+    robot, cam, E0, f, F, axis = scene
+    full = ShaftPixelsError(f.pixels[0], axis, cam.K, 1.5, kernel)
+    part = ShaftPixelsError(f.pixels[0], axis, cam.K, 1.5, kernel, weight=0.25)
+    e1, J1 = full.evaluate(E0)
+    e, J = check(part, gtsam.Pose3(E0), tol=2e-6)
+    assert np.allclose(e, 0.5 * e1) and np.allclose(J, 0.5 * J1)
+    assert np.allclose(part.costs(limb_lines(E0, axis, part.M, False)[0]),
+                       0.25 * full.costs(limb_lines(E0, axis, full.M, False)[0]))
+
+
 def test_pairing_gives_the_two_edges_different_limbs(scene):
     """Shift E sideways by ~0.7 shaft widths: both pixel sets (and both detected
     lines) are then nearer the same projected limb; alone each takes it, paired
