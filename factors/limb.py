@@ -117,7 +117,8 @@ class LimbPairing:
     ``limbs(E, L)`` gives the limb (0 / 1) of every member: the injective
     assignment of members to the two limbs with the least total cost (with
     more than two members, the two best-placed take the limbs injectively and
-    the others their nearer limb). Two detected shaft edges are two different
+    the others their nearer limb; a lone member, in a pairing of its own, its
+    nearer limb). Two detected shaft edges are two different
     limbs; left to choose alone, both take the nearer one whenever E is off
     by more than half the shaft's image width. Both are cached for the last E,
     so the frame's factors, evaluated at the same E, decide together once."""

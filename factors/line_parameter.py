@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from factors.limb import LimbPairing, ShaftAxis, limb_lines, line_matrix
+from factors.limb import LimbPairing, ShaftAxis, line_matrix
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 from graphtrack.geometry.lines import line_difference
@@ -41,8 +41,8 @@ class LineParameterError(PoseErrorFunction):
         self.M = line_matrix(np.asarray(K, float))
         self.sig = np.array([sigma_rho, sigma_theta], float)
         self.limb = -1
-        self.pairing = pairing
-        self.slot = pairing.add(self) if pairing is not None else -1
+        self.pairing = pairing if pairing is not None else LimbPairing()  # alone: the nearer limb
+        self.slot = self.pairing.add(self)
 
     def _differences(self, L: np.ndarray):
         A, B, C = L[:, 0], L[:, 1], L[:, 2]
@@ -56,20 +56,14 @@ class LineParameterError(PoseErrorFunction):
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         """Unwhitened residual (d_rho px, d_theta rad) and its (2, 6) Jacobian."""
-        if self.pairing is not None:
-            L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
-        else:
-            L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
+        L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1
             return np.zeros(2), (np.zeros((2, 6)) if jacobian else None)
         A, B, C = L[:, 0], L[:, 1], L[:, 2]
         s = np.hypot(A, B)
         drho, dth = self._differences(L)
-        if self.pairing is not None:
-            i = self.pairing.limbs(E, L)[self.slot]
-        else:
-            i = int(np.argmin((drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2))
+        i = self.pairing.limbs(E, L)[self.slot]
         self.limb = i
         r = np.array([drho[i], dth[i]])
         if not jacobian:

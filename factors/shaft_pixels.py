@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from factors.limb import LimbPairing, ShaftAxis, limb_lines, line_matrix
+from factors.limb import LimbPairing, ShaftAxis, line_matrix
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 
@@ -60,8 +60,8 @@ class ShaftPixelsError(PoseErrorFunction):
         self.sigma = float(sigma)
         self.kernel = make_kernel(kernel)
         self.limb = -1      # limb used at the last evaluation (0 / 1), -1: degenerate
-        self.pairing = pairing
-        self.slot = pairing.add(self) if pairing is not None else -1
+        self.pairing = pairing if pairing is not None else LimbPairing()  # alone: the nearer limb
+        self.slot = self.pairing.add(self)
         self._zL = self._z = None
         self.sqrt_w = float(np.sqrt(weight))
 
@@ -84,19 +84,13 @@ class ShaftPixelsError(PoseErrorFunction):
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         """Residual e (m,) and de/dxi (m, 6) (None without ``jacobian``) at 4x4 E."""
         m = self.dim
-        if self.pairing is not None:
-            L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
-        else:
-            L, dL, valid = limb_lines(E, self.axis, self.M, jacobian)
+        L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1
             return np.zeros(m), (np.zeros((m, 6)) if jacobian else None)
         s = np.hypot(L[:, 0], L[:, 1])                              # (2,)
         z = self.whitened(L)                                        # (m, 2)
-        if self.pairing is not None:
-            i = self.pairing.limbs(E, L)[self.slot]
-        else:
-            i = int(np.argmin(self.kernel.loss(np.abs(z)).sum(axis=0)))
+        i = self.pairing.limbs(E, L)[self.slot]
         self.limb = i
         zi = z[:, i]
         if not jacobian:
