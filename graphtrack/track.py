@@ -19,12 +19,11 @@ import numpy as np
 
 from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.robot.features import base_features, shaft_lines
 
 STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
-from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 
 
 @dataclass

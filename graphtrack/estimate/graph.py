@@ -24,13 +24,11 @@ from factors.marker import marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import shaft_pixels_factor
 from graphtrack.detect.base import POLAR_MODELS
+from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
 from graphtrack.robot.features import base_features
 
 #: (b, w) <-> gtsam (omega, v) reordering
 _PERM = np.array([3, 4, 5, 0, 1, 2])
-
-#: the extra trajectory columns (left perturbation, translation first)
-from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 
 
 def key(k: int) -> int:

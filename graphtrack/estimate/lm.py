@@ -78,7 +78,7 @@ def levenberg_marquardt(graph, values, max_iterations: int = 30, relative_tolera
         iterations += 1
         decrease = error - new_error
         values, error = candidate, new_error
-        lam = max(lam / LAMBDA_FACTOR, 0.0)
+        lam /= LAMBDA_FACTOR
         if decrease / max(error + decrease, 1e-300) < relative_tolerance:
             break
     return LMResult(values, iterations, float(error), solves)
