@@ -1,0 +1,199 @@
+"""The study's report: table.md / table.csv / runtime.csv / results.csv and the
+accumulated-error plots, read back from the cell folders of
+:mod:`graphtrack.eval.study` (a cell is complete when it holds done.json).
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from graphtrack.errors import InputError
+
+if TYPE_CHECKING:
+    from graphtrack.eval.study import Cell
+
+
+def is_done(cell: Cell) -> bool:
+    p = Path(cell.out) / "done.json"
+    if not p.is_file():
+        return False
+    try:
+        doc = json.loads(p.read_text())
+    except (OSError, json.JSONDecodeError):
+        return False
+    return doc.get("options") == cell.options and (Path(cell.out) / "metrics.json").is_file()
+
+
+def cell_status(cell: Cell) -> dict:
+    """{'state': 'done'|'error'|'missing', 'result': ..., 'error': ...} from the cell folder."""
+    out = Path(cell.out)
+    if is_done(cell):
+        doc = json.loads((out / "done.json").read_text())
+        return {"state": "done", "result": doc.get("result", {})}
+    if (out / "error.json").is_file():
+        try:
+            err = json.loads((out / "error.json").read_text()).get("error", "failed")
+        except (OSError, json.JSONDecodeError):
+            err = "failed"
+        return {"state": "error", "error": err}
+    return {"state": "missing"}
+
+
+def _fmt(x: float, nd: int = 2) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:.{nd}f}"
+
+
+def _get(d: dict, *keys, default=float("nan")):
+    for k in keys:
+        if not isinstance(d, dict) or k not in d:
+            return default
+        d = d[k]
+    return d if d is not None else default
+
+
+def _write_pair_table(path: Path, rows, recs, cells: dict, suffixes: tuple[str, str], digits: int) -> None:
+    """A CSV with two columns per recording (``<rec><suffix>``) holding each cell's
+    pair of numbers, or its state string (e.g. an error) and a blank."""
+    with path.open("w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        w.writerow(["observation", "estimator"] + [f"{r}{sfx}" for r in recs for sfx in suffixes])
+        for row in rows:
+            vals = []
+            for r in recs:
+                v = cells.get((row, r), "")
+                vals += [v, ""] if isinstance(v, str) else [_fmt(v[0], digits), _fmt(v[1], digits)]
+            w.writerow(list(row) + vals)
+
+
+def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
+    """table.md, table.csv, runtime.csv, results.csv from the cell folders; returns the table data."""
+    recs = list(dict.fromkeys(c.recording for c in cells))
+    rows = list(dict.fromkeys(c.row for c in cells))
+    status = {(c.row, c.recording): (c, cell_status(c)) for c in cells}
+    errors = []
+    acc, run = {}, {}
+    for (row, rec), (c, st) in status.items():
+        if st["state"] == "done":
+            r = st["result"]
+            acc[row, rec] = (_get(r, "tip_error_percent_diagonal", "mean"),
+                             _get(r, "tip_error_percent_diagonal", "std"))
+            run[row, rec] = (_get(r, "runtime_ms", "median"), _get(r, "fps"))
+        elif st["state"] == "error":
+            acc[row, rec] = run[row, rec] = "error"
+            errors.append((rec, c.key, st["error"]))
+        else:
+            acc[row, rec] = run[row, rec] = "missing"
+
+    def acc_cell(v):
+        return v if isinstance(v, str) else f"{_fmt(v[0])} ({_fmt(v[1])})"
+
+    def run_cell_(v):
+        return v if isinstance(v, str) else f"{_fmt(v[0], 1)} ({_fmt(v[1], 1)})"
+
+    md = ["# Estimator comparison", "",
+          "## Tool-tip error", "",
+          "2-D tool-tip error against labels.csv in % of the image diagonal: mean (std).", "",
+          "| observation | estimator | " + " | ".join(recs) + " |",
+          "|---|---|" + "---|" * len(recs)]
+    for row in rows:
+        md.append(f"| {row[0]} | {row[1]} | "
+                  + " | ".join(acc_cell(acc.get((row, r), "—")) for r in recs) + " |")
+    md += ["", "## Runtime", "", "Median milliseconds per frame (frames per second).", "",
+           "| observation | estimator | " + " | ".join(recs) + " |",
+           "|---|---|" + "---|" * len(recs)]
+    for row in rows:
+        md.append(f"| {row[0]} | {row[1]} | "
+                  + " | ".join(run_cell_(run.get((row, r), "—")) for r in recs) + " |")
+    plots = [f"accumulated_error_{r}.png" for r in recs if (out / f"accumulated_error_{r}.png").is_file()]
+    if plots:
+        md += ["", "## Accumulated error", ""] + [f"![{p}]({p})" for p in plots]
+    if notes:
+        md += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    if errors:
+        md += ["", "## Errors", ""] + [f"- {rec} / {key}: {msg}" for rec, key, msg in errors]
+    (out / "table.md").write_text("\n".join(md) + "\n")
+
+    _write_pair_table(out / "table.csv", rows, recs, acc, ("", "_std"), 4)
+    _write_pair_table(out / "runtime.csv", rows, recs, run, ("_ms_median", "_fps"), 3)
+    with (out / "results.csv").open("w", newline="") as f:
+        w = csv.writer(f, lineterminator="\n")
+        cols = ["tip_error_px.mean", "tip_error_px.median", "tip_error_px.p95",
+                "tip_error_percent_diagonal.mean", "tip_error_percent_diagonal.std",
+                "tip_error_percent_diagonal.median", "tip_error_percent_diagonal.p95",
+                "tip_error_3d_mm.mean", "translation_error_mm.mean", "rotation_error_deg.mean",
+                "nees.mean", "runtime_ms.median", "fps", "frames_tracked", "frames_skipped"]
+        w.writerow(["recording", "observation", "estimator", "state"] + cols + ["error"])
+        for (row, rec), (c, st) in status.items():
+            r = st.get("result", {})
+            w.writerow([rec, row[0], row[1], st["state"]]
+                       + [_fmt(_get(r, *k.split(".")), 4) for k in cols] + [st.get("error", "")])
+    return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "errors": errors,
+            "notes": notes}
+
+
+def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
+    """accumulated_error_<recording>.png: one curve per completed cell with labels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from graphtrack.eval.metrics import accumulated_error, tip_error_series
+    from graphtrack.io.labels import read_labels
+    from graphtrack.io.trajectory import read_trajectory
+
+    written = []
+    for rec in dict.fromkeys(c.recording for c in cells):
+        mine = [c for c in cells if c.recording == rec and cell_status(c)["state"] == "done"]
+        if not mine:
+            continue
+        lab_path = Path(mine[0].path) / "labels.csv"
+        if not lab_path.is_file():
+            continue
+        labels = read_labels(lab_path)
+        fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
+        drawn = 0
+        for c in mine:
+            res = cell_status(c)["result"]
+            diag = res.get("image_diagonal_px")
+            try:
+                traj = read_trajectory(Path(c.out) / "trajectory.csv")
+            except InputError:
+                continue
+            frames, errs = tip_error_series(traj, labels, diag)
+            if len(frames) == 0:
+                continue
+            ax.plot(frames, accumulated_error(errs), label=c.estimator if c.observation is None else f"{c.estimator} / {c.observation}", lw=1.4)
+            drawn += 1
+        ax.set_xlabel("frame")
+        ax.set_ylabel("accumulated tip error (% of diagonal)")
+        ax.set_title(f"{rec}: running mean of the 2-D tool-tip error")
+        ax.grid(alpha=0.3)
+        if drawn:
+            ax.legend(fontsize=7, loc="best")
+        fig.tight_layout()
+        p = out / f"accumulated_error_{rec}.png"
+        fig.savefig(p)
+        plt.close(fig)
+        written.append(p)
+    return written
+
+
+def format_table(data: dict) -> str:
+    """The accuracy table as aligned plain text (for the terminal)."""
+    recs = data["recordings"]
+    head = ["observation", "estimator"] + recs
+    lines = []
+    for row in data["rows"]:
+        vals = []
+        for r in recs:
+            v = data["accuracy"].get((row, r), "—")
+            vals.append(v if isinstance(v, str) else f"{_fmt(v[0])} ({_fmt(v[1])})")
+        lines.append(list(row) + vals)
+    widths = [max(len(str(x)) for x in col) for col in zip(head, *lines)]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return "\n".join([fmt.format(*head), fmt.format(*["-" * w for w in widths])]
+                     + [fmt.format(*l) for l in lines])
