@@ -103,3 +103,35 @@ def test_compare_on_local_ray(rec, tmp_path):
     for name in ("trajectory.csv", "trajectory.tum", "metrics.json", "done.json"):
         assert (cell / name).is_file()
     assert json.loads((cell / "done.json").read_text())["result"]["frames_tracked"] == 12
+
+
+def test_repeats_run_seed_dependent_cells_and_report_their_mean(rec, tmp_path):
+    out = tmp_path / "study"
+    rc = _compare([rec], out, "--estimators", "pf,smoother", "--max-frames", "6",
+                  "--observations", "line-intensities,line-intensities-polar", "--repeats", "2", "--seed", "3")
+    assert rc == 0
+    runs = out / "runs" / "rec"
+    # the particle filter (resampling) and the RANSAC model depend on the seed; the
+    # smoother on line-intensities does not and runs once
+    assert sorted(p.name for p in runs.iterdir()) == [
+        "pf-line-intensities", "pf-line-intensities-polar", "pf-line-intensities-polar.seed4",
+        "pf-line-intensities.seed4", "smoother-line-intensities", "smoother-line-intensities-polar",
+        "smoother-line-intensities-polar.seed4"]
+    seeds = {p.name: json.loads((p / "done.json").read_text())["options"]["seed"] for p in runs.iterdir()}
+    assert seeds["pf-line-intensities"] == 3 and seeds["pf-line-intensities.seed4"] == 4
+
+    def mean_pct(folder):
+        return json.loads((runs / folder / "metrics.json").read_text())["tip_error_percent_diagonal"]["mean"]
+
+    with (out / "table.csv").open() as f:
+        table = {(r[0], r[1]): float(r[2]) for r in list(csv.reader(f))[1:]}
+    want = (mean_pct("pf-line-intensities") + mean_pct("pf-line-intensities.seed4")) / 2
+    assert table["line-intensities", "pf"] == pytest.approx(want, abs=1e-4)
+    assert table["line-intensities", "smoother"] == pytest.approx(mean_pct("smoother-line-intensities"), abs=1e-4)
+    with (out / "results.csv").open() as f:
+        res = list(csv.DictReader(f))
+    assert len(res) == 7
+    assert sorted(r["seed"] for r in res if r["estimator"] == "pf" and r["observation"] == "line-intensities") \
+        == ["3", "4"]
+    assert "(2 seeds)" in (out / "table.md").read_text()
+    assert _compare([rec], out, "--estimators", "pf", "--repeats", "0") == 2

@@ -30,11 +30,14 @@ def study_options_from_args(args):
         raise InputError("--lag must be positive")
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
+    if args.repeats < 1:
+        raise InputError("--repeats must be at least 1")
     return StudyOptions(estimators=_list(args.estimators, tuple(ESTIMATORS), "estimators"),
                         observations=_list(args.observations, OBSERVATION_MODELS, "observations"),
                         detector=args.detector, weights=args.weights, max_frames=args.max_frames,
                         particles=args.particles, lag=args.lag, smoother=args.smoother, seed=args.seed,
-                        alpha=args.alpha, beta=args.beta, markers=not args.no_markers)
+                        alpha=args.alpha, beta=args.beta, markers=not args.no_markers,
+                        repeats=args.repeats)
 
 
 def run(args) -> int:
@@ -77,6 +80,9 @@ def add_parser(sub):
     p.add_argument("--lag", type=float, default=1.0, metavar="SECONDS", help="smoother: fixed lag")
     p.add_argument("--smoother", choices=("isam2", "batch"), default="isam2")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--repeats", type=int, default=1, metavar="N",
+                   help="run each seed-dependent cell (the particle filter; the RANSAC -polar models) "
+                        "with seeds SEED..SEED+N-1 and report their mean (default 1)")
     p.add_argument("--alpha", type=float, default=10.0, help="pixel-set radius alpha (px)")
     p.add_argument("--beta", type=float, default=0.9, help="pixel-set heatmap threshold beta")
     p.add_argument("--max-frames", type=int, default=None, metavar="N")

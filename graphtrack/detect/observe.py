@@ -57,6 +57,10 @@ def _ids(detection: Detection, k: int) -> np.ndarray:
 
 MAX_PIXELS = 250
 
+#: models whose observation draws random numbers (the RANSAC line of each set), so
+#: it depends on the run's seed
+SEEDED_MODELS = ("endpoint-intensities-polar", "line-intensities-polar")
+
 
 def _thin(points: np.ndarray, max_pixels: int | None) -> np.ndarray:
     """At most ``max_pixels`` evenly spaced rows of ``points`` (all when None/0)."""

@@ -84,6 +84,7 @@ class ParticleFilter:
     """
 
     name = "pf"
+    stochastic = True   #: the estimate depends on ``seed`` (resampling): studies repeat it
     uses_observations = True
     extra_columns = STD_COLUMNS + ("ess",)
 

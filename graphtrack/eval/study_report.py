@@ -54,6 +54,12 @@ def _get(d: dict, *keys, default=float("nan")):
     return d if d is not None else default
 
 
+def _mean(values) -> float:
+    """Mean of the finite values (NaN when none)."""
+    v = [float(x) for x in values if x is not None and math.isfinite(float(x))]
+    return sum(v) / len(v) if v else float("nan")
+
+
 def _write_pair_table(path: Path, rows, recs, cells: dict, suffixes: tuple[str, str], digits: int) -> None:
     """A CSV with two columns per recording (``<rec><suffix>``) holding each cell's
     pair of numbers, or its state string (e.g. an error) and a blank."""
@@ -69,23 +75,35 @@ def _write_pair_table(path: Path, rows, recs, cells: dict, suffixes: tuple[str, 
 
 
 def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
-    """table.md, table.csv, runtime.csv, results.csv from the cell folders; returns the table data."""
+    """table.md, table.csv, runtime.csv, results.csv from the cell folders; returns the table data.
+
+    A (row, recording) entry run with several seeds (the study's repeats)
+    reports the mean over its runs of each run's figures; ``spread`` holds the
+    per-seed means (min, max, count) of those entries. An entry with a failed
+    run reads "error", one with a run not yet done "missing".
+    """
     recs = list(dict.fromkeys(c.recording for c in cells))
     rows = list(dict.fromkeys(c.row for c in cells))
-    status = {(c.row, c.recording): (c, cell_status(c)) for c in cells}
+    status = [(c, cell_status(c)) for c in cells]
+    groups: dict = {}
+    for c, st in status:
+        groups.setdefault((c.row, c.recording), []).append((c, st))
     errors = []
-    acc, run = {}, {}
-    for (row, rec), (c, st) in status.items():
-        if st["state"] == "done":
-            r = st["result"]
-            acc[row, rec] = (_get(r, "tip_error_percent_diagonal", "mean"),
-                             _get(r, "tip_error_percent_diagonal", "std"))
-            run[row, rec] = (_get(r, "runtime_ms", "median"), _get(r, "fps"))
-        elif st["state"] == "error":
-            acc[row, rec] = run[row, rec] = "error"
-            errors.append((rec, c.key, st["error"]))
-        else:
-            acc[row, rec] = run[row, rec] = "missing"
+    acc, run, spread = {}, {}, {}
+    for (row, rec), runs in groups.items():
+        for c, st in runs:
+            if st["state"] == "error":
+                errors.append((rec, c.key, st["error"]))
+        states = {st["state"] for _, st in runs}
+        if states != {"done"}:
+            acc[row, rec] = run[row, rec] = "error" if "error" in states else "missing"
+            continue
+        res = [st["result"] for _, st in runs]
+        means = [_get(r, "tip_error_percent_diagonal", "mean") for r in res]
+        acc[row, rec] = (_mean(means), _mean([_get(r, "tip_error_percent_diagonal", "std") for r in res]))
+        run[row, rec] = (_mean([_get(r, "runtime_ms", "median") for r in res]), _mean([_get(r, "fps") for r in res]))
+        if len(runs) > 1:
+            spread[row, rec] = (min(means), max(means), len(runs))
 
     def acc_cell(v):
         return v if isinstance(v, str) else f"{_fmt(v[0])} ({_fmt(v[1])})"
@@ -101,6 +119,15 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
     for row in rows:
         md.append(f"| {row[0]} | {row[1]} | "
                   + " | ".join(acc_cell(acc.get((row, r), "—")) for r in recs) + " |")
+    if spread:
+        md += ["", "Entries run with several seeds (a stochastic estimator or RANSAC lines) are the "
+               "mean over the seeds; the per-seed means (% of the diagonal):", "",
+               "| observation | estimator | " + " | ".join(recs) + " |", "|---|---|" + "---|" * len(recs)]
+        for row in rows:
+            if any((row, r) in spread for r in recs):
+                md.append(f"| {row[0]} | {row[1]} | " + " | ".join(
+                    f"{_fmt(spread[row, r][0])} - {_fmt(spread[row, r][1])} ({spread[row, r][2]} seeds)"
+                    if (row, r) in spread else "1 seed" for r in recs) + " |")
     md += ["", "## Runtime", "", "Median milliseconds per frame (frames per second).", "",
            "| observation | estimator | " + " | ".join(recs) + " |",
            "|---|---|" + "---|" * len(recs)]
@@ -125,17 +152,18 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
                 "tip_error_percent_diagonal.median", "tip_error_percent_diagonal.p95",
                 "tip_error_3d_mm.mean", "translation_error_mm.mean", "rotation_error_deg.mean",
                 "nees.mean", "runtime_ms.median", "fps", "frames_tracked", "frames_skipped"]
-        w.writerow(["recording", "observation", "estimator", "state"] + cols + ["error"])
-        for (row, rec), (c, st) in status.items():
+        w.writerow(["recording", "observation", "estimator", "seed", "state"] + cols + ["error"])
+        for c, st in status:
             r = st.get("result", {})
-            w.writerow([rec, row[0], row[1], st["state"]]
+            w.writerow([c.recording, c.row[0], c.row[1], c.options.get("seed", ""), st["state"]]
                        + [_fmt(_get(r, *k.split(".")), 4) for k in cols] + [st.get("error", "")])
-    return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "errors": errors,
-            "notes": notes}
+    return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "spread": spread,
+            "errors": errors, "notes": notes}
 
 
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
-    """accumulated_error_<recording>.png: one curve per completed cell with labels."""
+    """accumulated_error_<recording>.png: one curve per completed cell with labels (the
+    study's own seed of a repeated one)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -147,7 +175,7 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
 
     written = []
     for rec in dict.fromkeys(c.recording for c in cells):
-        mine = [c for c in cells if c.recording == rec and cell_status(c)["state"] == "done"]
+        mine = [c for c in cells if c.recording == rec and c.repeat == 0 and cell_status(c)["state"] == "done"]
         if not mine:
             continue
         lab_path = Path(mine[0].path) / "labels.csv"
