@@ -64,10 +64,15 @@ class Pipeline:
     def __init__(self, ctx: TrackingContext, options: TrackOptions):
         self.ctx = ctx
         self.options = options
+        self.scale = options.detect_scale or auto_detect_scale(ctx.camera.width)
+        self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
         opts = dict(options.estimator_options)
         if options.estimator != "kinematics":
             opts.setdefault("observation", options.observation)
             opts.setdefault("markers", options.markers)
+            # marker gates are tuned in detection pixels (an image <= 960 px wide); the
+            # estimators see full-size pixels
+            opts.setdefault("gate_scale", 1.0 / self.scale)
         self.estimator = make_estimator(options.estimator, ctx, **opts)
         self.needs_images = getattr(self.estimator, "uses_observations", True)
         self.detector = None
@@ -81,8 +86,6 @@ class Pipeline:
         self.last_std = None          # nothing known before the first estimate: widest gate
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
         self.rng = np.random.default_rng(options.seed)
-        self.scale = options.detect_scale or auto_detect_scale(ctx.camera.width)
-        self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
 
     def predicted_lines(self, frame: Frame) -> np.ndarray | None:
         """Shaft edges (2, 2) (rho, theta) from the last estimate and this frame's

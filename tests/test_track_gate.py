@@ -37,3 +37,34 @@ def test_gate_follows_the_estimate_std(pipe):
     # and the same through a rotation about the camera's x axis: 3 f |w|
     pipe.last_std = np.array([0, 0, 0, 0.02, 0, 0])
     assert pipe.gate(frame).max_offset == pytest.approx(sc * min(3 * pipe.ctx.camera.K[0, 0] * 0.02, MAX_GATE_PX))
+
+
+def test_marker_gates_are_in_detection_pixels():
+    """At a detection scale s the estimators' marker gates become gate / s full-size px."""
+    import gtsam
+
+    from factors.marker import project_markers
+    from graphtrack.detect.base import Observation
+    from graphtrack.estimate import observation_models as om
+    from graphtrack.estimate.graph import FactorOptions, frame_factors, key
+    from graphtrack.robot.features import base_features
+
+    robot, cam, E0 = make_scene()
+    ctx = TrackingContext(robot, cam, E0)
+    half = Pipeline(ctx, TrackOptions(estimator="smoother", detector="canny", detect_scale=0.5))
+    assert half.estimator.fopts.gate_scale == 2.0
+    pf = Pipeline(ctx, TrackOptions(estimator="pf", detector="canny", detect_scale=0.5,
+                                    estimator_options={"particles": 16}))
+    assert pf.estimator.marker_gate == pytest.approx(2.0 * om.MARKER_GATE)
+    full = Pipeline(ctx, TrackOptions(estimator="smoother", detector="canny", detect_scale=1.0))
+    assert full.estimator.fopts.gate_scale == 1.0
+
+    # a marker detected 90 px from its prediction: outside a 60 px gate, inside 60 * 2
+    q = np.asarray(Q0, float)
+    uv, _ = project_markers(E0, base_features(robot, q).points, cam.K)
+    obs = Observation(model="line-intensities", markers=uv[:1] + np.array([90.0, 0.0]))
+    values = gtsam.Values()
+    values.insert(key(0), gtsam.Pose3(E0))
+    for scale, associated in ((1.0, False), (2.0, True)):
+        (f,) = frame_factors(0, q, obs, robot, cam.K, FactorOptions(gate_scale=scale))
+        assert (f.error(values) > 0) == associated

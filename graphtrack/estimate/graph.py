@@ -84,6 +84,16 @@ class FactorOptions:
     markers: use marker detections; max_pixels: subsample each edge's pixel
     set to at most this many (deterministic stride; 0 = all).
 
+    gate_scale: full-size pixels per detection-image pixel; the gate used is
+    marker_gate * gate_scale. The tracking pipeline passes 1 / its detection
+    scale (2 at 1080x1920, detected at half size): the gate guards against the
+    start-up pose error, whose image shift grows with the focal length, and
+    was tuned on 540x960 recordings (f = 1000 px). With a 60 px gate at
+    1080x1920 (f = 2000 px) the markers of a benchmark recording stayed out of
+    the graph and the smoother slid along the shaft (tip 56-83 px, no better
+    than the kinematics; with the gate scaled: 15-23 px, 7-12 px at half size
+    as at 540x960).
+
     marker_gate is 60 px, not the paper's 20: real (and simulated) hand-eye
     errors put the markers 20-45 px from their prediction at start-up, and
     with a 20 px gate they never entered the graph, leaving the two shaft lines
@@ -124,6 +134,7 @@ class FactorOptions:
     markers: bool = True
     max_pixels: int = 0
     pixel_effective_count: float = 20.0
+    gate_scale: float = 1.0
 
     @property
     def kernel(self):
@@ -185,7 +196,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     if want_markers and len(F.points):
         mk = np.asarray(observation.markers, float).reshape(-1, 2)
         mk = mk[np.all(np.isfinite(mk), axis=1)]
-        f = marker_factor(x, mk, F.points, K, opts.marker_sigma, opts.marker_gate, kern)
+        f = marker_factor(x, mk, F.points, K, opts.marker_sigma, opts.marker_gate * opts.gate_scale, kern)
         if f is not None:
             return out, [f]
     return out, []

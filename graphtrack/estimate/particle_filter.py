@@ -78,7 +78,9 @@ class ParticleFilter:
     gamma_rho (1/px), gamma_theta (1/rad): polar models; use_edge_ids: pair
     detected and projected edges by Observation.edge_ids instead of the best
     pairing per particle; pixel_sigma (px), pixel_outlier_sigmas,
-    pixel_weight: pixel models; marker_gamma (1/px), marker_gate (px).
+    pixel_weight: pixel models; marker_gamma (1/px), marker_gate (px; times
+    gate_scale, the full-size pixels per detection pixel, which the tracking
+    pipeline sets to 1 / its detection scale, as for the smoother).
     ``observation`` is the model the caller intends to feed (informational:
     each Observation carries its own ``model``, which is what is scored).
     """
@@ -98,6 +100,7 @@ class ParticleFilter:
                  pixel_outlier_sigmas: float = om.PIXEL_OUTLIER_SIGMAS,
                  pixel_weight: float = om.PIXEL_WEIGHT,
                  marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE,
+                 gate_scale: float = 1.0,
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K):
@@ -125,7 +128,7 @@ class ParticleFilter:
         if marker_loss not in om.MARKER_LOSSES:
             raise ValueError(f"unknown marker loss {marker_loss!r}")
         self.marker_gamma = float(marker_gamma)
-        self.marker_gate = float(marker_gate)
+        self.marker_gate = float(marker_gate) * float(gate_scale)
         self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
