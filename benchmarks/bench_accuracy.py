@@ -62,7 +62,8 @@ def run(results: dict) -> dict:
     scenes = [s for s, _ in RECORDINGS]
     kin = {s: next(v for (r, e, _), v in cells.items() if r == s and e == "kinematics") for s in scenes}
     header = "| observation model | " + " | ".join(f"{e} {s}" for s in scenes for e in ESTIMATORS[1:]) + " |"
-    rows = [header, "|---" * (1 + len(scenes) * 3) + "|",
+    sep = "|---" * (1 + len(scenes) * 3) + "|"
+    rows = [header, sep,
             "| (kinematics, no correction) | " + " | ".join(
                 f"{kin[s]:.2f}" if e == "pf" else "" for s in scenes for e in ESTIMATORS[1:]) + " |"]
     for m in OBSERVATION_MODELS:
@@ -70,8 +71,7 @@ def run(results: dict) -> dict:
         rows.append(f"| {m} | " + " | ".join(f"{v:.2f}" for v in vals) + " |")
     table = "mean 2-D tip error (px), same recordings; seed-dependent cells: mean over %d seeds" % REPEATS
     res.setdefault("tables", {})[table] = "\n".join(rows)
-    spread = [header.replace("| observation model |", "| observation model (seeds: min - max) |"),
-              "|---" * (1 + len(scenes) * 3) + "|"]
+    spread = [header.replace("| observation model |", "| observation model (seeds: min - max) |"), sep]
     for m in OBSERVATION_MODELS:
         vals = []
         for s in scenes:
@@ -91,7 +91,7 @@ def run(results: dict) -> dict:
                 src.get((s, "smoother", m), 1e9) <= src.get((s, "pf", m), -1) for m in shared)
             res[f"batch_le_smoother_models_{s}{tag}"] = sum(
                 src.get((s, "batch", m), 1e9) <= src.get((s, "smoother", m), -1) for m in OBSERVATION_MODELS)
-    res["shared_models"] = len([m for m in OBSERVATION_MODELS if m != "endpoints-polar"])
+    res["shared_models"] = len(shared)
     res["study_folder"] = str(out)
     for line in rows + [""] + spread:
         print(line)

@@ -74,6 +74,13 @@ def _write_pair_table(path: Path, rows, recs, cells: dict, suffixes: tuple[str, 
             w.writerow(list(row) + vals)
 
 
+def _md_table(rows, recs, text) -> list[str]:
+    """Markdown lines of a table: one line per (observation, estimator) row, one
+    column per recording, ``text(row, recording)`` in each cell."""
+    lines = ["| observation | estimator | " + " | ".join(recs) + " |", "|---|---|" + "---|" * len(recs)]
+    return lines + [f"| {row[0]} | {row[1]} | " + " | ".join(text(row, r) for r in recs) + " |" for row in rows]
+
+
 def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
     """table.md, table.csv, runtime.csv, results.csv from the cell folders; returns the table data.
 
@@ -111,29 +118,22 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
     def run_cell_(v):
         return v if isinstance(v, str) else f"{_fmt(v[0], 1)} ({_fmt(v[1], 1)})"
 
+    def seeds_cell(row, r):
+        if (row, r) not in spread:
+            return "1 seed"
+        lo, hi, n = spread[row, r]
+        return f"{_fmt(lo)} - {_fmt(hi)} ({n} seeds)"
+
     md = ["# Estimator comparison", "",
           "## Tool-tip error", "",
-          "2-D tool-tip error against labels.csv in % of the image diagonal: mean (std).", "",
-          "| observation | estimator | " + " | ".join(recs) + " |",
-          "|---|---|" + "---|" * len(recs)]
-    for row in rows:
-        md.append(f"| {row[0]} | {row[1]} | "
-                  + " | ".join(acc_cell(acc.get((row, r), "—")) for r in recs) + " |")
+          "2-D tool-tip error against labels.csv in % of the image diagonal: mean (std).", ""]
+    md += _md_table(rows, recs, lambda row, r: acc_cell(acc.get((row, r), "—")))
     if spread:
         md += ["", "Entries run with several seeds (a stochastic estimator or RANSAC lines) are the "
-               "mean over the seeds; the per-seed means (% of the diagonal):", "",
-               "| observation | estimator | " + " | ".join(recs) + " |", "|---|---|" + "---|" * len(recs)]
-        for row in rows:
-            if any((row, r) in spread for r in recs):
-                md.append(f"| {row[0]} | {row[1]} | " + " | ".join(
-                    f"{_fmt(spread[row, r][0])} - {_fmt(spread[row, r][1])} ({spread[row, r][2]} seeds)"
-                    if (row, r) in spread else "1 seed" for r in recs) + " |")
-    md += ["", "## Runtime", "", "Median milliseconds per frame (frames per second).", "",
-           "| observation | estimator | " + " | ".join(recs) + " |",
-           "|---|---|" + "---|" * len(recs)]
-    for row in rows:
-        md.append(f"| {row[0]} | {row[1]} | "
-                  + " | ".join(run_cell_(run.get((row, r), "—")) for r in recs) + " |")
+               "mean over the seeds; the per-seed means (% of the diagonal):", ""]
+        md += _md_table([row for row in rows if any((row, r) in spread for r in recs)], recs, seeds_cell)
+    md += ["", "## Runtime", "", "Median milliseconds per frame (frames per second).", ""]
+    md += _md_table(rows, recs, lambda row, r: run_cell_(run.get((row, r), "—")))
     plots = [f"accumulated_error_{r}.png" for r in recs if (out / f"accumulated_error_{r}.png").is_file()]
     if plots:
         md += ["", "## Accumulated error", ""] + [f"![{p}]({p})" for p in plots]
