@@ -14,7 +14,7 @@ the damped linear system, ``Values.retract`` and ``graph.error``.
 The iteration is gtsam's (``LevenbergMarquardtParams`` defaults): with the
 linearisation J, b at x, solve
 
-    (J^T J + lambda I) delta = J^T b       (as the extra rows sqrt(lambda) I per pose)
+    (J^T J + lambda I) delta = J^T b       (as the extra rows sqrt(lambda) I per variable)
 
 and accept x <- x (+) delta when the cost f (0.5 sum of squared whitened
 errors) falls, rho = (f(x) - f(x (+) delta)) / (f(x) - l(delta)) > 1e-3
@@ -45,25 +45,24 @@ class LMResult:
 
 def levenberg_marquardt(graph, values, max_iterations: int = 30, relative_tolerance: float = 1e-3,
                         absolute_tolerance: float = 1e-5, lambda_initial: float = LAMBDA_INITIAL) -> LMResult:
-    """Minimise ``graph``'s cost from ``values`` (gtsam objects, every variable a Pose3; see the
-    module docstring)."""
+    """Minimise ``graph``'s cost from ``values`` (gtsam objects: Pose3 and Vector
+    variables; see the module docstring)."""
     import gtsam
 
-    keys = list(values.keys())
+    dims = values.dims()   # per key: 6 for a Pose3, n for a length-n Vector
     error = graph.error(values)
     lam = float(lambda_initial)
     iterations = solves = 0
-    unit6 = gtsam.noiseModel.Unit.Create(6)
-    zero6 = np.zeros(6)
-    eye6 = np.eye(6)
+    blocks = {d: (gtsam.noiseModel.Unit.Create(d), np.zeros(d), np.eye(d)) for d in set(dims.values())}
     while iterations < max_iterations and error > absolute_tolerance:
         linear = graph.linearize(values)
         accepted = False
         while lam <= LAMBDA_MAX:
             damped = linear.clone()
-            a = np.sqrt(lam) * eye6
-            for k in keys:
-                damped.push_back(gtsam.JacobianFactor(k, a, zero6, unit6))
+            root = np.sqrt(lam)
+            for k, d in dims.items():
+                unit, zero, eye = blocks[d]
+                damped.push_back(gtsam.JacobianFactor(k, root * eye, zero, unit))
             delta = damped.optimize()
             solves += 1
             predicted = error - linear.error(delta)
