@@ -35,12 +35,15 @@ def _obs(f):
 
 def nees_monte_carlo(results: dict, runs: int = 200) -> None:
     """Monte-Carlo NEES at 1 s lag: one value per independent run, frame ~ U[60, 200), with the
-    pixel model that matches the synthetic generator (independent pixels: pixel_effective_count=0)."""
+    pixel model that matches the synthetic generator (independent, unbiased pixels:
+    pixel_effective_count=0, edge_bias=False)."""
     from graphtrack.eval.consistency import monte_carlo_nees
 
     t0 = time.perf_counter()
-    # synthetic pixels are independent: the matched model counts every pixel (no tempering)
-    res = monte_carlo_nees(lambda ctx: FixedLagSmootherEstimator(ctx, lag=1.0, pixel_effective_count=0),
+    # synthetic pixels are independent and unbiased: the matched model counts every pixel
+    # (no tempering) and has no edge-bias state
+    res = monte_carlo_nees(lambda ctx: FixedLagSmootherEstimator(ctx, lag=1.0, pixel_effective_count=0,
+                                                                 edge_bias=False),
                            runs=runs, first=60, last=200, pixel_noise=1.5, marker_noise=2.0, progress=True)
     results["nees_mc_runs"] = runs
     results["nees_mc_mean"] = res.mean

@@ -31,6 +31,18 @@ continuous in E.
 A degenerate view (``valid`` False) gives a zero residual and zero Jacobian:
 the factor then says nothing and the graph stays solvable.
 
+Edge bias (``bias=True``, :mod:`factors.edge_bias`): the factor also has the
+frame's bias vector b = (l, l_s, w, w_s) as a second key, and a pixel
+assigned to limb i has the residual
+
+    z_j = (R(p_j | theta_i(E), rho_i(E)) - c_j . (w + sgn_i l, w_s + sgn_i l_s)) / sigma,
+    c_j = (1, t_j / T)       (t_j along the set, :func:`factors.edge_bias.bias_coefficients`)
+
+with dz_j/db = -c_j . G_i / sigma, G_i = d(offset, slope)/db
+(:func:`factors.edge_bias.limb_bias_jacobian`). The limb assignment is
+decided on E alone (a bias of a pixel or two does not change which limb is
+nearer).
+
 Tempering (``weight`` w in (0, 1]): the factor's cost is w sum_j rho(z_j),
 i.e. e_j = sqrt(w) g(z_j) (the per-pixel robust kernel still decides on the
 pixel's own sigma). With w = n / m for an m-pixel set the set counts as n
@@ -42,8 +54,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from factors.limb import LimbPairing, ShaftAxis, line_matrix
+from factors.edge_bias import BIAS_DIM, bias_coefficients, limb_bias, limb_bias_jacobian
 from factors.error_function import PoseErrorFunction
+from factors.limb import LimbPairing, ShaftAxis, line_matrix
 from factors.robust import RobustKernel, make_kernel
 
 
@@ -52,8 +65,9 @@ class ShaftPixelsError(PoseErrorFunction):
 
     def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
                  kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None,
-                 weight: float = 1.0):
+                 weight: float = 1.0, bias: bool = False):
         self.pixels = np.asarray(pixels, float).reshape(-1, 2)
+        self.C = bias_coefficients(self.pixels) if bias else None   # (m, 2) or None
         self.h = np.hstack([self.pixels, np.ones((len(self.pixels), 1))])  # (m, 3)
         self.axis = axis
         self.M = line_matrix(np.asarray(K, float))
@@ -81,33 +95,54 @@ class ShaftPixelsError(PoseErrorFunction):
         """Robust cost (2,) of the pixel set against each limb of L (2, 3)."""
         return self.sqrt_w ** 2 * self.kernel.loss(np.abs(self.whitened(L))).sum(axis=0)
 
-    def evaluate(self, E: np.ndarray, jacobian: bool = True):
-        """Residual e (m,) and de/dxi (m, 6) (None without ``jacobian``) at 4x4 E."""
+    def evaluate(self, E: np.ndarray, jacobian: bool = True, b: np.ndarray | None = None):
+        """Residual e (m,) and its Jacobian (None without ``jacobian``) at 4x4 E:
+        de/dxi (m, 6), or with the bias vector b (4,) (``bias=True``) the
+        (m, 10) [de/dxi, de/db]."""
         m = self.dim
+        ncols = 6 if b is None else 6 + BIAS_DIM
         L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1
-            return np.zeros(m), (np.zeros((m, 6)) if jacobian else None)
+            return np.zeros(m), (np.zeros((m, ncols)) if jacobian else None)
         s = np.hypot(L[:, 0], L[:, 1])                              # (2,)
         z = self.whitened(L)                                        # (m, 2)
         i = self.pairing.limbs(E, L)[self.slot]
         self.limb = i
         zi = z[:, i]
+        if b is not None:
+            zi = zi - (self.C @ limb_bias(b, i)) / self.sigma
         if not jacobian:
             return self.sqrt_w * self.kernel.apply_scalar(zi, None)[0], None
         ab0 = np.array([L[i, 0], L[i, 1], 0.0]) / s[i]
         # dz/dxi = (h - z sigma (A, B, 0)/s)/(s sigma) . dL/dxi, evaluated as h.(dL/s sigma) - z (ab0.dL/s)
+        # (z the unbiased distance: the bias term does not depend on E)
         dLi = dL[i] / (s[i] * self.sigma)                            # (3, 6)
-        J = self.h @ dLi - zi[:, None] * (self.sigma * (ab0 @ dLi))[None, :]
+        J = np.zeros((m, ncols))
+        J[:, :6] = self.h @ dLi - z[:, i][:, None] * (self.sigma * (ab0 @ dLi))[None, :]
+        if b is not None:
+            J[:, 6:] = (self.C @ limb_bias_jacobian(i)) / -self.sigma
         e, J = self.kernel.apply_scalar(zi, J)
         return (e, J) if self.sqrt_w == 1.0 else (self.sqrt_w * e, self.sqrt_w * J)
+
+    def __call__(self, this, values, H):
+        if self.C is None:
+            return super().__call__(this, values, H)
+        keys = this.keys()
+        e, J = self.evaluate(values.atPose3(keys[0]).matrix(), H is not None, values.atVector(keys[1]))
+        if H is not None:
+            H[0] = J[:, :6]
+            H[1] = J[:, 6:]
+        return e
 
 
 
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
                         sigma: float = 1.5, kernel: RobustKernel | str | None = "cauchy",
-                        pairing: LimbPairing | None = None, weight: float = 1.0):
+                        pairing: LimbPairing | None = None, weight: float = 1.0,
+                        bias_key: int | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one edge's pixels (m, 2); None if empty.
+    With ``bias_key`` (the frame's edge-bias vector) the factor is on (key, bias_key).
 
     ``pairing``: the frame's :class:`LimbPairing` (shared by its edges' factors),
     None for the nearer-limb assignment of a lone set; ``weight``: the tempering
@@ -118,6 +153,6 @@ def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.nda
     pixels = np.asarray(pixels, float).reshape(-1, 2)
     if len(pixels) == 0:
         return None
-    fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing, weight)
-    f = gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(len(pixels)), [key], fn)
-    return f
+    fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing, weight, bias=bias_key is not None)
+    keys = [key] if bias_key is None else [key, bias_key]
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(len(pixels)), keys, fn)

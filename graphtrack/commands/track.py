@@ -26,6 +26,8 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="k
     p.add_argument("--lag", type=float, default=1.0, metavar="SECONDS", help="smoother: fixed lag")
     p.add_argument("--smoother", choices=("isam2", "batch"), default="isam2",
                    help="smoother: gtsam IncrementalFixedLagSmoother or BatchFixedLagSmoother")
+    p.add_argument("--no-edge-bias", action="store_true",
+                   help="smoother/batch, pixel models: no edge-bias state (for edges known to be unbiased)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--alpha", type=float, default=10.0, help="pixel-set radius alpha (px)")
     p.add_argument("--beta", type=float, default=0.9, help="pixel-set heatmap threshold beta")
@@ -52,6 +54,8 @@ def options_from_args(args):
         est_opts = {"particles": args.particles, "seed": args.seed}
     elif args.estimator == "smoother":
         est_opts = {"lag": args.lag, "smoother": args.smoother}
+    if args.estimator in ("smoother", "batch") and getattr(args, "no_edge_bias", False):
+        est_opts["edge_bias"] = False
     det_opts = {"weights": args.weights} if args.weights else {}
     return TrackOptions(estimator=args.estimator, observation=args.observation, detector=args.detector,
                         markers=not args.no_markers, estimator_options=est_opts, detector_options=det_opts,

@@ -2,8 +2,9 @@
 
 Same graph as the online smoother (:mod:`graphtrack.estimate.smoother`):
 prior on frame 0 at E_0, a BetweenFactorPose3 between every pair of
-consecutive frames (always, so gaps in the detections stay solvable), and each
-frame's robust detection factors. ``step`` only records the frame's readings
+consecutive frames (always, so gaps in the detections stay solvable), each
+frame's robust detection factors, and for the pixel models each frame's
+edge-bias vector b_k with its Gauss-Markov chain (:mod:`factors.edge_bias`). ``step`` only records the frame's readings
 and observation and returns a provisional estimate (the previous one: E_0 at
 first, or the online smoother's when ``provisional="smoother"``); ``finish``
 runs Levenberg-Marquardt over all frames (:mod:`graphtrack.estimate.lm`,
@@ -11,7 +12,8 @@ gtsam's iteration driven from Python so that the factor callbacks see the
 Values without pybind11 copying it into each one), initialised from the
 provisional estimates, and returns the refined Estimates with the marginal
 covariance of each E_t in the left (b, w) perturbation (``covariance=True``;
-computed with one sparse block-tridiagonal pass, O(n)).
+computed with one sparse block-tridiagonal pass over the per-frame states
+(E_k, b_k), O(n)).
 
 Defaults (measured on 600 synthetic frames, one core): initialised from E_0
 with a relative tolerance of 1e-6, LM took 8 iterations; initialised from the
@@ -30,8 +32,9 @@ import numpy as np
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
-from graphtrack.estimate.graph import (estimate_extra, frame_factors, gaussian_bw, key,
+from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factors, gaussian_bw, key,
                                        left_from_right_cov, split_options)
+from factors.edge_bias import BIAS_DIM, bias_key
 
 
 class BatchEstimator:
@@ -50,7 +53,7 @@ class BatchEstimator:
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
                  motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
                  max_iterations: int = 30, relative_tolerance: float = 1e-3,
-                 covariance: bool = True, provisional: str = "smoother", **options):
+                 covariance: bool = True, provisional: str = "smoother", fps: float = 30.0, **options):
         import gtsam
 
         self.gtsam = gtsam
@@ -64,7 +67,10 @@ class BatchEstimator:
         self.max_iterations = int(max_iterations)
         self.relative_tolerance = float(relative_tolerance)
         self.covariance = bool(covariance)
+        self.fps = float(fps)
+        self.bias = self.fopts.uses_edge_bias(observation)
         self.frames: list[tuple[np.ndarray, object]] = []
+        self.stamps: list[float] = []
         self.initial: list[np.ndarray] = []
         self.online = None
         if provisional == "smoother":
@@ -74,11 +80,13 @@ class BatchEstimator:
                                                     prior_sigma_b=prior_sigma_b, prior_sigma_w=prior_sigma_w,
                                                     motion_sigma_b=motion_sigma_b,
                                                     motion_sigma_w=motion_sigma_w, covariance=False,
-                                                    **options)
+                                                    fps=fps, **options)
         self.stats: dict[str, float] = {}
 
     def step(self, frame: Frame, observation) -> Estimate:
         self.frames.append((np.asarray(frame.q, float).copy(), observation))
+        stamp = float(frame.stamp) if frame.stamp is not None else float("nan")
+        self.stamps.append(stamp if np.isfinite(stamp) else len(self.stamps) / self.fps)
         if self.online is not None:
             E = self.online.step(frame, observation).E
         else:
@@ -99,49 +107,62 @@ class BatchEstimator:
             for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.model):
                 graph.add(f)
             values.insert(key(k), gtsam.Pose3(self.initial[k]))
+            if self.bias:
+                dt = None if k == 0 else self.stamps[k] - self.stamps[k - 1]
+                for f in edge_bias_factors(k, dt, self.fopts):
+                    graph.add(f)
+                values.insert(bias_key(k), np.zeros(BIAS_DIM))
         return graph, values
 
     def _chain_marginals(self, graph, result, n: int) -> list[np.ndarray]:
-        """Diagonal 6x6 blocks of the inverse information of the chain (right coordinates).
+        """Diagonal 6x6 E blocks of the inverse information of the chain (right coordinates).
 
-        Every factor touches one key or two consecutive keys, so the Gauss-Newton
-        information is block tridiagonal: forward/backward block elimination
-        (Rauch-Tung-Striebel form) gives all diagonal blocks of its inverse in O(n).
+        Frame k's state is (E_k) or (E_k, b_k) (d = 6 or 10 coordinates) and every
+        factor touches frame k alone or frames k - 1 and k, so the Gauss-Newton
+        information is block tridiagonal in the frames: forward/backward block
+        elimination (Rauch-Tung-Striebel form) gives all diagonal blocks of its
+        inverse in O(n); E_k's marginal is the first 6 x 6 of frame k's.
         """
         gtsam = self.gtsam
-        D = np.zeros((n, 6, 6))
-        U = np.zeros((max(n - 1, 0), 6, 6))   # block (k, k+1)
+        d = 6 + (BIAS_DIM if self.bias else 0)
+        D = np.zeros((n, d, d))
+        U = np.zeros((max(n - 1, 0), d, d))   # block (k, k+1)
         lin = graph.linearize(result)
+
+        def place(k):   # (frame, first coordinate in the frame's state)
+            sym = gtsam.Symbol(k)
+            return int(sym.index()), (0 if chr(sym.chr()) == "x" else 6)
+
         for i in range(lin.size()):
             gf = lin.at(i)
             if gf is None:
                 continue
             H = gf.augmentedInformation()[:-1, :-1]
-            keys = [gtsam.Symbol(kk).index() for kk in gf.keys()]
-            if len(keys) == 1:
-                D[keys[0]] += H
-            else:
-                a, b = keys
-                Hs = {(a, a): H[:6, :6], (a, b): H[:6, 6:], (b, a): H[6:, :6], (b, b): H[6:, 6:]}
-                lo, hi = min(a, b), max(a, b)
-                D[lo] += Hs[(lo, lo)]
-                D[hi] += Hs[(hi, hi)]
-                U[lo] += Hs[(lo, hi)]
+            keys = list(gf.keys())
+            spans, at = [], 0
+            for kk in keys:
+                dim = 6 if chr(gtsam.Symbol(kk).chr()) == "x" else BIAS_DIM
+                spans.append((place(kk), slice(at, at + dim), dim))
+                at += dim
+            for (fa, oa), sa, da in spans:
+                for (fb, ob), sb, db in spans:
+                    blk = H[sa, sb]
+                    if fa == fb:
+                        D[fa, oa:oa + da, ob:ob + db] += blk
+                    elif fa + 1 == fb:
+                        U[fa, oa:oa + da, ob:ob + db] += blk
         # forward: S_k = D_k - U_{k-1}^T S_{k-1}^-1 U_{k-1}
-        S = np.zeros_like(D)
         Sinv = np.zeros_like(D)
-        S[0] = D[0]
-        Sinv[0] = np.linalg.inv(S[0])
+        Sinv[0] = np.linalg.inv(D[0])
         for k in range(1, n):
-            S[k] = D[k] - U[k - 1].T @ Sinv[k - 1] @ U[k - 1]
-            Sinv[k] = np.linalg.inv(S[k])
+            Sinv[k] = np.linalg.inv(D[k] - U[k - 1].T @ Sinv[k - 1] @ U[k - 1])
         # backward: P_n = S_n^-1, P_k = S_k^-1 + G_k P_{k+1} G_k^T, G_k = S_k^-1 U_k
         P = np.zeros_like(D)
         P[n - 1] = Sinv[n - 1]
         for k in range(n - 2, -1, -1):
             G = Sinv[k] @ U[k]
             P[k] = Sinv[k] + G @ P[k + 1] @ G.T
-        return list(P)
+        return [p[:6, :6] for p in P]
 
     def finish(self) -> list[Estimate]:
         n = len(self.frames)

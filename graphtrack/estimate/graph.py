@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.edge_bias import bias_key, bias_prior_factor, bias_sigmas, bias_transition_factor, transition
 from factors.limb import LimbPairing, ShaftAxis
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
@@ -135,10 +136,33 @@ class FactorOptions:
     max_pixels: int = 0
     pixel_effective_count: float = 20.0
     gate_scale: float = 1.0
+    edge_bias: bool = True
+    edge_bias_sigma_lateral: float = 0.3
+    edge_bias_sigma_lateral_slope: float = 0.3
+    edge_bias_sigma_width: float = 3.0
+    edge_bias_sigma_width_slope: float = 3.0
+    edge_bias_tau: float = 2.0
 
     @property
     def kernel(self):
         return make_kernel(self.robust, self.robust_k)
+
+    def uses_edge_bias(self, model: str | None) -> bool:
+        """Whether frames carry the edge-bias state: ``edge_bias`` and a pixel model."""
+        return bool(self.edge_bias) and model not in POLAR_MODELS
+
+    @property
+    def edge_bias_sigmas(self) -> np.ndarray:
+        return bias_sigmas(self.edge_bias_sigma_lateral, self.edge_bias_sigma_lateral_slope,
+                           self.edge_bias_sigma_width, self.edge_bias_sigma_width_slope)
+
+
+def edge_bias_factors(k: int, dt: float | None, opts: FactorOptions) -> list:
+    """The edge-bias state's factors of frame k: its prior when k starts the chain
+    (``dt`` None), else the Gauss-Markov transition from frame k - 1 over ``dt`` s."""
+    if dt is None:
+        return [bias_prior_factor(k, opts.edge_bias_sigmas)]
+    return [bias_transition_factor(k - 1, k, transition(dt, opts.edge_bias_tau), opts.edge_bias_sigmas)]
 
 
 def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
@@ -169,6 +193,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     F = base_features(robot, np.asarray(q, float))
     kern = opts.kernel
     x = key(k)
+    b = bias_key(k) if opts.uses_edge_bias(model) else None
     model = observation.model or model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
@@ -190,7 +215,8 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                 w = 1.0
                 if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
                     w = opts.pixel_effective_count / len(px)  # the m pixels count as n_eff
-                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w)
+                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w,
+                                        b if model not in POLAR_MODELS else None)
                 if f is not None:
                     out.append(f)
     if want_markers and len(F.points):

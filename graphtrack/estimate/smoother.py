@@ -9,7 +9,10 @@ One gtsam.Pose3 E_t per frame (key x_t). Factors:
   x_t, identity) with left per-frame stds (motion_sigma_b, motion_sigma_w),
   the particle filter's Gaussian random walk;
 - the frame's detections (:func:`graphtrack.estimate.graph.frame_factors`):
-  shaft pixels / lines and markers, robust.
+  shaft pixels / lines and markers, robust;
+- pixel models: the frame's edge-bias vector b_t (key b_t, same timestamp as
+  x_t), its prior at frame 0 and the Gauss-Markov transition from b_{t-1}
+  (:mod:`factors.edge_bias`); the shaft-pixel factors are on (x_t, b_t).
 
 Start-up: the first frame with detections gets its initial value from
 Levenberg-Marquardt on that frame alone (its factors + the prior at the
@@ -54,8 +57,9 @@ import numpy as np
 
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
-from graphtrack.estimate.graph import (estimate_extra, frame_factor_groups, gaussian_bw, key,
-                                       left_from_right_cov, split_options)
+from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
+                                       key, left_from_right_cov, split_options)
+from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
 
 
 class FixedLagSmootherEstimator:
@@ -105,10 +109,20 @@ class FixedLagSmootherEstimator:
         self.converge_tol = float(converge_tol)
         self.fps = float(fps)
         self.covariance = bool(covariance)
+        self.bias = self.fopts.uses_edge_bias(observation)
+        self.last_bias = np.zeros(BIAS_DIM)
         if self.kind == "isam2":
             p = gtsam.ISAM2Params()
             p.relinearizeSkip = 1
-            p.setRelinearizeThreshold(float(relinearize_threshold))
+            if self.bias:
+                # b enters the factors linearly: relinearising for its moves (px) would
+                # re-evaluate every pixel factor of the window each frame (10x slower)
+                th = gtsam.ISAM2ThresholdMap()
+                th.insert(("x", np.full(6, float(relinearize_threshold))))
+                th.insert(("b", np.full(BIAS_DIM, 1e3)))
+                p.setRelinearizeThreshold(th)
+            else:
+                p.setRelinearizeThreshold(float(relinearize_threshold))
             self.smoother = gtsam.IncrementalFixedLagSmoother(self.lag, p)
         else:
             lm = gtsam.LevenbergMarquardtParams()
@@ -145,12 +159,13 @@ class FixedLagSmootherEstimator:
             return None
         return left_from_right_cov(pose.matrix(), np.asarray(C))
 
-    def _start_up(self, x: int, shaft: list, markers: list):
+    def _start_up(self, k: int, shaft: list, markers: list):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
         that frame's factors + a prior at the current estimate (the hand-eye prior's
         spread). iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
         error of several mm / deg overshoot into a wrong data association."""
         gtsam = self.gtsam
+        x = key(k)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.start_up_iterations)
         # damping scaled by the Hessian's diagonal: far from the data every pixel sits
@@ -166,6 +181,9 @@ class FixedLagSmootherEstimator:
                 g.add(f)
             v = gtsam.Values()
             v.insert(x, pose)
+            if self.bias:           # the shaft factors are on (x, b): b at its stationary prior
+                g.add(bias_prior_factor(k, self.fopts.edge_bias_sigmas))
+                v.insert(bias_key(k), np.zeros(BIAS_DIM))
             try:
                 pose = gtsam.LevenbergMarquardtOptimizer(g, v, params).optimize().atPose3(x)
             except RuntimeError:
@@ -182,6 +200,15 @@ class FixedLagSmootherEstimator:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
+        previous = self.last_stamp
+        stamp = self._stamp(frame)
+        if self.bias:
+            dt = None if k == 0 else stamp - previous
+            for f in edge_bias_factors(k, dt, self.fopts):
+                graph.add(f)
+            phi = 0.0 if dt is None else transition(dt, self.fopts.edge_bias_tau)
+            values.insert(bias_key(k), phi * self.last_bias)
+            stamps.insert((bias_key(k), stamp))
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
@@ -193,12 +220,12 @@ class FixedLagSmootherEstimator:
                 markers = []          # no marker association before the shaft has been seen
                 self.waited += 1
             if shaft or markers:
-                self.last = self._start_up(x, shaft, markers)
+                self.last = self._start_up(k, shaft, markers)
                 self.started = True
         for f in shaft + markers:
             graph.add(f)
         values.insert(x, self.last)
-        stamps.insert((x, self._stamp(frame)))
+        stamps.insert((x, stamp))
         self.smoother.update(graph, values, stamps)
         pose = self.smoother.calculateEstimatePose3(x)
         if self.kind == "isam2":
@@ -210,6 +237,8 @@ class FixedLagSmootherEstimator:
                 self.smoother.update()
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
+        if self.bias:
+            self.last_bias = np.asarray(self.smoother.calculateEstimateVector(bias_key(k)), float)
         cov = self._marginal(x, pose) if self.covariance else None
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)

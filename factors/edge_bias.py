@@ -1,0 +1,144 @@
+"""The detector's edge bias: a slowly varying state per projected limb.
+
+A line detector errs by the whole edge, and by nearly the same amount from one
+frame to the next: the learned detector's heatmap (1/4 scale) puts the pixel
+sets of the benchmark recordings 1-1.6 px off the true limb near the image
+border and at the wrist end, persistently (benchmarks/RESULTS.md). Counted as
+independent pixel noise, that error is averaged over frames as if it were
+information, and the shaft's weakly seen directions (the depth tilt, seen only
+through the limbs' slight convergence, and with it the slide of the tip along
+the shaft) lock onto it; the more frames an estimator uses, the tighter.
+
+So each frame k carries, next to E_k, the bias vector (px)
+
+    b_k = (l, l_s, w, w_s)
+
+the lateral offset l and its slope l_s (both edges shifted the same way in
+the image: a shift or turn of the shaft's image) and the width offset w and
+its slope w_s (both edges moved outwards: a wider or more converging shaft,
+i.e. a depth or depth-tilt error). A pixel p of an edge set assigned to limb i
+has the residual
+
+    R(p | theta_i(E), rho_i(E)) - c(p) . (w + sgn_i l, w_s + sgn_i l_s),   c(p) = (1, t(p) / T)
+
+where t(p) is p's coordinate along the set's principal direction from the
+set's centroid (px; the direction oriented downwards in the image, +y, or
++x for a horizontal set) and T = ``SLOPE_SCALE`` = 100 px, so an offset is the
+edge's offset at the set's centroid and a slope its change over 100 px of
+edge. R is the signed distance to limb i's line (A, B, C)(E) as
+:func:`factors.limb.limb_lines` orients it: the two limbs' normals point
+opposite ways (n = alpha u +- beta v with beta ~ 1), so the same lateral shift
+is +l on limb 0 and -l on limb 1 (sgn = +1, -1), and a wider image +w on both.
+Lateral and width terms get their own spreads: the lateral ones are
+observed through the markers, the width ones compete with the depth, which the
+markers see only weakly.
+
+Over time b is a first-order Gauss-Markov process with stationary standard
+deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
+
+    b_0 ~ N(0, diag(sigma^2)),
+    b_k = phi b_{k-1} + w_k,  phi = exp(-dt / tau),  w_k ~ N(0, (1 - phi^2) diag(sigma^2))
+
+(dt: seconds between the frames), i.e. the prior :func:`bias_prior_factor` and
+the transition :func:`bias_transition_factor`, a linear factor with residual
+(b_k - phi b_{k-1}) / (sigma sqrt(1 - phi^2)) and constant Jacobians.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: the bias vector's dimension: (lateral offset, lateral slope, width offset, width slope)
+BIAS_DIM = 4
+#: sgn_i of the lateral terms on limb i
+LATERAL_SIGN = (1.0, -1.0)
+#: px of edge over which the slope s_i is the offset change
+SLOPE_SCALE = 100.0
+
+
+def bias_key(k: int) -> int:
+    """The gtsam key of frame k's bias vector (symbol 'b', k)."""
+    import gtsam
+
+    return gtsam.symbol("b", int(k))
+
+
+def bias_sigmas(lateral: float, lateral_slope: float, width: float, width_slope: float) -> np.ndarray:
+    """The stationary standard deviations (4,) of b = (l, l_s, w, w_s), px."""
+    return np.array([lateral, lateral_slope, width, width_slope], float)
+
+
+def bias_coefficients(pixels: np.ndarray) -> np.ndarray:
+    """(m, 2): c(p) = (1, t(p) / T) for each pixel of one edge set (t along the
+    set's principal direction, oriented +y (+x if horizontal), from its centroid, px)."""
+    p = np.asarray(pixels, float).reshape(-1, 2)
+    if len(p) == 0:
+        return np.zeros((0, 2))
+    X = p - p.mean(axis=0)
+    _, vecs = np.linalg.eigh(X.T @ X)
+    u = vecs[:, 1]
+    if u[1] < 0 or (u[1] == 0 and u[0] < 0):
+        u = -u
+    return np.stack([np.ones(len(p)), (X @ u) / SLOPE_SCALE], axis=1)
+
+
+def limb_bias(b: np.ndarray, limb: int) -> np.ndarray:
+    """(offset, slope) (2,) of limb ``limb``'s edge for b = (l, l_s, w, w_s)."""
+    b = np.asarray(b, float)
+    return b[2:4] + LATERAL_SIGN[limb] * b[0:2]
+
+
+def limb_bias_jacobian(limb: int) -> np.ndarray:
+    """d(offset, slope)/db (2, 4) of :func:`limb_bias`."""
+    g = LATERAL_SIGN[limb]
+    return np.array([[g, 0.0, 1.0, 0.0], [0.0, g, 0.0, 1.0]])
+
+
+def bias_prior_factor(k: int, sigmas: np.ndarray):
+    """b_k ~ N(0, diag(sigmas^2)): the bias of the first frame."""
+    import gtsam
+
+    return gtsam.PriorFactorVector(bias_key(k), np.zeros(BIAS_DIM),
+                                   gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)))
+
+
+def transition(dt: float, tau: float) -> float:
+    """phi = exp(-dt / tau) (dt, tau in seconds; tau <= 0 or inf: a random walk, phi = 1)."""
+    if not np.isfinite(tau) or tau <= 0:
+        return 1.0
+    return float(np.exp(-max(float(dt), 0.0) / float(tau)))
+
+
+class BiasTransitionError:
+    """CustomFactor callback of b_k = phi b_{k-1} + w (keys b_{k-1}, b_k):
+
+        e = (b_k - phi b_{k-1}) / q,   q = sigma sqrt(1 - phi^2)
+        de/db_{k-1} = -phi diag(1/q),  de/db_k = diag(1/q)
+    """
+
+    def __init__(self, phi: float, sigmas: np.ndarray):
+        self.phi = float(phi)
+        sigmas = np.asarray(sigmas, float)
+        # phi = 1 (random walk) keeps a small step instead of a zero one
+        q = sigmas * np.sqrt(max(1.0 - self.phi ** 2, 1e-6))
+        self.inv_q = 1.0 / q
+        self.J_prev = -self.phi * np.diag(self.inv_q)
+        self.J_next = np.diag(self.inv_q)
+
+    def evaluate(self, b_prev: np.ndarray, b_next: np.ndarray) -> np.ndarray:
+        return (np.asarray(b_next, float) - self.phi * np.asarray(b_prev, float)) * self.inv_q
+
+    def __call__(self, this, values, H):
+        keys = this.keys()
+        e = self.evaluate(values.atVector(keys[0]), values.atVector(keys[1]))
+        if H is not None:
+            H[0] = self.J_prev
+            H[1] = self.J_next
+        return e
+
+
+def bias_transition_factor(k_prev: int, k: int, phi: float, sigmas: np.ndarray):
+    """gtsam.CustomFactor tying b_k to b_{k_prev} (see :class:`BiasTransitionError`)."""
+    import gtsam
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(BIAS_DIM), [bias_key(k_prev), bias_key(k)],
+                              BiasTransitionError(phi, sigmas))
