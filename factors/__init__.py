@@ -1,8 +1,10 @@
 """GTSAM factors tying one frame's detections to the lumped error E_t (a gtsam.Pose3).
 
-Every factor is a ``gtsam.CustomFactor`` on ONE Pose3 key E (camera-from-base)
-whose error function is a small, typed, vectorised numpy function with an
-ANALYTIC Jacobian in GTSAM's right (body) perturbation convention
+Every measurement factor is a ``gtsam.CustomFactor`` on ONE Pose3 key E
+(camera-from-base; the shaft-pixel factor also on the frame's edge-bias vector
+when that state is used) whose error function is a small, typed, vectorised
+numpy function with an ANALYTIC Jacobian in GTSAM's right (body) perturbation
+convention
 
     E (+) xi = E . Exp(xi),      xi = (omega, v)   (rotation first, as gtsam)
 
@@ -14,6 +16,8 @@ ANALYTIC Jacobian in GTSAM's right (body) perturbation convention
   association and a 20 px gate;
 - :mod:`factors.robust`: the Huber / Cauchy kernels (gtsam's mEstimator
   definitions), applied per pixel / per marker inside the multi-residual factors;
+- :mod:`factors.edge_bias`: the detector's edge-bias state (lateral / width
+  offset and slope, px) and its Gauss-Markov prior and transition;
 - :mod:`factors.limb`: the shared limb-line geometry and its derivatives;
 - :mod:`factors.synthetic`: observations synthesised from the geometry (tests,
   benchmarks).
