@@ -15,23 +15,26 @@ So each frame k carries, next to E_k, the bias vector (px)
 
 the lateral offset l and its slope l_s (both edges shifted the same way in
 the image: a shift or turn of the shaft's image) and the width offset w and
-its slope w_s (both edges moved outwards: a wider or more converging shaft,
-i.e. a depth or depth-tilt error). A pixel p of an edge set assigned to limb i
-has the residual
+its slope w_s (both edges moved the same way relative to the shaft: a wider
+or narrower, more or less converging shaft image, i.e. a depth or depth-tilt
+error). A pixel p of an edge set assigned to limb i has the residual
 
     R(p | theta_i(E), rho_i(E)) - c(p) . (w + sgn_i l, w_s + sgn_i l_s),   c(p) = (1, t(p) / T)
 
 where t(p) is p's coordinate along the set's principal direction from the
-set's centroid (px; the direction oriented downwards in the image, +y, or
-+x for a horizontal set) and T = ``SLOPE_SCALE`` = 100 px, so an offset is the
-edge's offset at the set's centroid and a slope its change over 100 px of
-edge. R is the signed distance to limb i's line (A, B, C)(E) as
-:func:`factors.limb.limb_lines` orients it: the two limbs' normals point
-opposite ways (n = alpha u +- beta v with beta ~ 1), so the same lateral shift
-is +l on limb 0 and -l on limb 1 (sgn = +1, -1), and a wider image +w on both.
-Lateral and width terms get their own spreads: the lateral ones are
-observed through the markers, the width ones compete with the depth, which the
-markers see only weakly.
+set's centroid (px), the direction oriented along the frame's reference
+direction of the shaft (:func:`reference_direction`: robot.json's shaft axis
+direction projected through a fixed reference pose, the hand-eye prior E_0,
+so the same for both sets of a frame and from frame to frame),
+and T = ``SLOPE_SCALE`` = 100 px: an offset is the edge's offset at the set's
+centroid and a slope its change over 100 px of edge. R is the signed distance
+to limb i's line (A, B, C)(E) as :func:`factors.limb.limb_lines` orients it:
+both limbs' normals point into the shaft's image, so they point opposite ways,
+the same lateral shift is +l on limb 0 and -l on limb 1 (sgn = +1, -1), and
+w > 0 means both edges moved inwards (a narrower image), w < 0 outwards.
+Lateral and width terms get their own spreads: the lateral ones are observed
+through the markers, the width ones compete with the depth, which the markers
+see only weakly.
 
 Over time b is a first-order Gauss-Markov process with stationary standard
 deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
@@ -67,16 +70,31 @@ def bias_sigmas(lateral: float, lateral_slope: float, width: float, width_slope:
     return np.array([lateral, lateral_slope, width, width_slope], float)
 
 
-def bias_coefficients(pixels: np.ndarray) -> np.ndarray:
-    """(m, 2): c(p) = (1, t(p) / T) for each pixel of one edge set (t along the
-    set's principal direction, oriented +y (+x if horizontal), from its centroid, px)."""
+def reference_direction(E_ref: np.ndarray, p0: np.ndarray, d: np.ndarray, K: np.ndarray) -> np.ndarray | None:
+    """Image direction (2,) of the shaft axis (base-frame point p0 and unit direction d,
+    m) projected through the 4x4 E_ref with K; None when it does not project (behind
+    the camera, end-on)."""
+    P = np.stack([p0, p0 + 0.01 * np.asarray(d, float)]) @ E_ref[:3, :3].T + E_ref[:3, 3]
+    if np.any(P[:, 2] <= 1e-6):
+        return None
+    uv = P[:, :2] / P[:, 2:] * np.array([K[0, 0], K[1, 1]])
+    v = uv[1] - uv[0]
+    n = float(np.hypot(*v))
+    return None if n < 1e-9 else v / n
+
+
+def bias_coefficients(pixels: np.ndarray, direction: np.ndarray | None = None) -> np.ndarray:
+    """(m, 2): c(p) = (1, t(p) / T) for each pixel of one edge set: t along the set's
+    principal direction from its centroid (px), oriented along ``direction`` (2,)
+    (the frame's :func:`reference_direction`; without one: +y, +x if horizontal)."""
     p = np.asarray(pixels, float).reshape(-1, 2)
     if len(p) == 0:
         return np.zeros((0, 2))
     X = p - p.mean(axis=0)
     _, vecs = np.linalg.eigh(X.T @ X)
     u = vecs[:, 1]
-    if u[1] < 0 or (u[1] == 0 and u[0] < 0):
+    ref = np.array([1e-9, 1.0]) if direction is None else np.asarray(direction, float)
+    if u @ ref < 0:
         u = -u
     return np.stack([np.ones(len(p)), (X @ u) / SLOPE_SCALE], axis=1)
 
@@ -102,8 +120,12 @@ def bias_prior_factor(k: int, sigmas: np.ndarray):
 
 
 def transition(dt: float, tau: float) -> float:
-    """phi = exp(-dt / tau) (dt, tau in seconds; tau <= 0 or inf: a random walk, phi = 1)."""
-    if not np.isfinite(tau) or tau <= 0:
+    """phi = exp(-dt / tau) (dt, tau in seconds): tau = inf gives phi = 1, a bias
+    that stays constant (the transition's step spread is floored at 1e-3 sigma);
+    tau <= 0 gives phi = 0, an independent bias in every frame."""
+    if tau <= 0:
+        return 0.0
+    if not np.isfinite(tau):
         return 1.0
     return float(np.exp(-max(float(dt), 0.0) / float(tau)))
 
@@ -118,7 +140,7 @@ class BiasTransitionError:
     def __init__(self, phi: float, sigmas: np.ndarray):
         self.phi = float(phi)
         sigmas = np.asarray(sigmas, float)
-        # phi = 1 (random walk) keeps a small step instead of a zero one
+        # phi = 1 (a constant bias) keeps a small step instead of a zero one
         q = sigmas * np.sqrt(max(1.0 - self.phi ** 2, 1e-6))
         self.inv_q = 1.0 / q
         self.J_prev = -self.phi * np.diag(self.inv_q)

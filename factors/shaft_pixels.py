@@ -65,9 +65,9 @@ class ShaftPixelsError(PoseErrorFunction):
 
     def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
                  kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None,
-                 weight: float = 1.0, bias: bool = False):
+                 weight: float = 1.0, bias: bool = False, direction: np.ndarray | None = None):
         self.pixels = np.asarray(pixels, float).reshape(-1, 2)
-        self.C = bias_coefficients(self.pixels) if bias else None   # (m, 2) or None
+        self.C = bias_coefficients(self.pixels, direction) if bias else None   # (m, 2) or None
         self.h = np.hstack([self.pixels, np.ones((len(self.pixels), 1))])  # (m, 3)
         self.axis = axis
         self.M = line_matrix(np.asarray(K, float))
@@ -140,9 +140,10 @@ class ShaftPixelsError(PoseErrorFunction):
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
                         sigma: float = 1.5, kernel: RobustKernel | str | None = "cauchy",
                         pairing: LimbPairing | None = None, weight: float = 1.0,
-                        bias_key: int | None = None):
+                        bias_key: int | None = None, direction: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one edge's pixels (m, 2); None if empty.
-    With ``bias_key`` (the frame's edge-bias vector) the factor is on (key, bias_key).
+    With ``bias_key`` (the frame's edge-bias vector) the factor is on (key, bias_key);
+    ``direction``: the frame's reference direction of the shaft for the slope terms.
 
     ``pairing``: the frame's :class:`LimbPairing` (shared by its edges' factors),
     None for the nearer-limb assignment of a lone set; ``weight``: the tempering
@@ -153,6 +154,7 @@ def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.nda
     pixels = np.asarray(pixels, float).reshape(-1, 2)
     if len(pixels) == 0:
         return None
-    fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing, weight, bias=bias_key is not None)
+    fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing, weight, bias=bias_key is not None,
+                          direction=direction)
     keys = [key] if bias_key is None else [key, bias_key]
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(len(pixels)), keys, fn)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from factors.edge_bias import (SLOPE_SCALE, BiasTransitionError, bias_coefficients, bias_key,
-                               bias_sigmas, bias_transition_factor, limb_bias, transition)
+                               bias_sigmas, bias_transition_factor, limb_bias, reference_direction,
+                               transition)
 from factors.limb import limb_lines, line_matrix
 from factors.limb import LimbPairing, ShaftAxis
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
@@ -16,7 +17,7 @@ from graphtrack.estimate import make_estimator
 from graphtrack.estimate.base import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import left_error
-from graphtrack.robot.features import base_features, shaft_lines
+from graphtrack.robot.features import base_features
 
 SCENE = make_scene()
 
@@ -41,7 +42,23 @@ def test_bias_coefficients_by_hand():
         assert np.allclose(C, np.stack([np.ones(3), (tt - t.mean()) / SLOPE_SCALE], 1))
     flat = np.array([[5.0, 3.0], [1.0, 3.0], [9.0, 3.0]])       # horizontal: +x
     assert np.allclose(bias_coefficients(flat)[:, 1], [0.0, -0.04, 0.04])
+    # a reference direction orients every set the same way, also either side of horizontal
+    for tilt in (+0.005, -0.005):
+        x = np.array([-150.0, 150.0])
+        C = bias_coefficients(np.stack([x, 100 + tilt * x], 1), direction=np.array([-1.0, 0.0]))
+        assert C[0, 1] > 0 > C[1, 1]
     assert bias_coefficients(np.zeros((0, 2))).shape == (0, 2)
+
+
+def test_reference_direction_by_hand():
+    """The axis through (0, 0, 0.1) m along +x, seen through E = I with fx = 800:
+    image direction +x; an axis behind the camera has none."""
+    K = np.array([[800.0, 0, 320], [0, 800.0, 240], [0, 0, 1]])
+    d = reference_direction(np.eye(4), np.array([0.0, 0.0, 0.1]), np.array([1.0, 0.0, 0.0]), K)
+    assert np.allclose(d, [1.0, 0.0])
+    d = reference_direction(np.eye(4), np.array([0.0, 0.0, 0.1]), np.array([0.0, -0.6, 0.8]), K)
+    assert d[0] == pytest.approx(0.0, abs=1e-12) and d[1] < 0
+    assert reference_direction(np.eye(4), np.array([0.0, 0.0, -0.1]), np.array([1.0, 0, 0]), K) is None
 
 
 def test_lateral_and_width_terms_by_hand(scene):
@@ -115,7 +132,8 @@ def test_transition_by_hand():
     assert np.allclose(sig, [1.0, 0.5, 0.3, 0.2])
     phi = transition(1 / 30, 2.0)
     assert phi == pytest.approx(np.exp(-1 / 60))
-    assert transition(0.1, 0.0) == 1.0 and transition(0.1, np.inf) == 1.0
+    assert transition(0.1, 0.0) == 0.0          # independent in every frame
+    assert transition(0.1, np.inf) == 1.0       # constant
     fn = BiasTransitionError(phi, sig)
     a, c = np.array([1.0, 2.0, -1.0, 0.0]), np.array([1.1, 1.9, -0.5, 0.2])
     q = sig * np.sqrt(1 - phi ** 2)
@@ -149,29 +167,36 @@ def test_batch_marginals_with_bias_match_gtsam():
         assert np.allclose(ours[k], C, rtol=1e-6, atol=1e-14)
 
 
-def _biased_frames(robot, cam, frames, offset, slope):
-    """Shift every pixel set off its true limb by offset + slope t / 100 px (t along the edge)."""
+def _biased_frames(robot, cam, E0, frames, offset, slope):
+    """Move every pixel set off its true limb i by offset_i + slope_i t / 100 px along
+    limb i's own normal (limb_lines orientation, into the shaft image), t along the
+    edge oriented by the reference direction at E0: in every frame the same bias."""
     out = []
     for f in frames:
-        rho, theta, _ = shaft_lines(base_features(robot, f.q).transformed(f.E_true), cam.K)
+        F = base_features(robot, f.q)
+        axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
+        L = limb_lines(f.E_true, axis, line_matrix(cam.K), False)[0]
+        n = L[:, :2] / np.hypot(L[:, 0], L[:, 1])[:, None]
+        direction = reference_direction(E0, F.shaft_p0[0], F.shaft_d[0], cam.K)
         sets = []
         for px in f.pixels:
-            d = px @ np.stack([np.cos(theta), np.sin(theta)]) - rho          # (m, 2)
+            d = (np.hstack([px, np.ones((len(px), 1))]) @ L.T) / np.hypot(L[:, 0], L[:, 1])
             i = int(np.argmin(np.median(np.abs(d), axis=0)))
-            n = np.array([np.cos(theta[i]), np.sin(theta[i])])
-            t = bias_coefficients(px)[:, 1]
-            sets.append(px + (offset[i] + slope[i] * t)[:, None] * n)
+            t = bias_coefficients(px, direction)[:, 1]
+            sets.append(px + (offset[i] + slope[i] * t)[:, None] * n[i])
         out.append(sets)
     return out
 
 
 def test_persistent_edge_offset_no_longer_drags_the_batch():
-    """Both edge sets 1.5 px off their limbs (one inward, one outward: a lateral shift)
-    plus a 1 px / 100 px tilt, the same in every frame: with the bias state the batch's
-    error is well below the error without it (the markers then carry the shift)."""
+    """Both edge sets 1.5 px off their limbs the same way in the image (+1.5 px along
+    limb 0's inward normal, -1.5 px along limb 1's: a lateral shift, l = 1.5) plus a
+    width slope (both 1 px per 100 px inwards: w_s = 1), the same in every frame:
+    with the bias state the batch's error is well below the error without it (the
+    markers then carry the shift)."""
     robot, cam, E0, frames = sequence(120, seed=2, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.0,
                                       marker_noise=1.0, pixels_per_edge=80)
-    shifted = _biased_frames(robot, cam, frames, offset=(1.5, -1.5), slope=(1.0, 1.0))
+    shifted = _biased_frames(robot, cam, E0, frames, offset=(1.5, -1.5), slope=(1.0, 1.0))
     errs = {}
     for on in (False, True):
         est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities",

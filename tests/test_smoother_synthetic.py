@@ -158,3 +158,14 @@ def test_batch_refines_whole_recording():
     assert np.max(np.abs(errs[:, :3])) < 1e-3 and np.degrees(np.max(np.abs(errs[:, 3:]))) < 0.5
     nees = np.array([x @ np.linalg.solve(e.cov, x) for x, e in zip(errs, out)])
     assert 2.0 < nees.mean() < 12.0
+
+
+def test_monotone_stamps():
+    """Frames without a stamp are filed 1/fps after the previous one (the first at 0 s);
+    a stamp that does not advance is moved 1 us past the previous one."""
+    from graphtrack.estimate.base import monotone_stamp
+
+    assert monotone_stamp(None, None, 30.0) == 0.0
+    assert monotone_stamp(float("nan"), 1.0, 30.0) == pytest.approx(1.0 + 1 / 30)
+    assert monotone_stamp(0.5, 1.0, 30.0) == pytest.approx(1.0 + 1e-6)
+    assert monotone_stamp(2.0, 1.0, 30.0) == 2.0

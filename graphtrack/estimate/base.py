@@ -45,6 +45,18 @@ class Frame:
         return np.asarray(self.joints, dtype=float)
 
 
+def monotone_stamp(stamp, previous: float | None, fps: float) -> float:
+    """The seconds an estimator files a frame under: its stamp, or (no finite stamp)
+    ``previous`` + 1 / fps (0 for the first frame); kept strictly increasing
+    (``previous`` + 1 us), so time steps and fixed-lag windows never run backwards."""
+    s = float(stamp) if stamp is not None else float("nan")
+    if not np.isfinite(s):
+        s = 0.0 if previous is None else previous + 1.0 / fps
+    if previous is not None and s <= previous:
+        s = previous + 1e-6
+    return s
+
+
 @dataclass
 class Estimate:
     """The estimator's answer for one frame.

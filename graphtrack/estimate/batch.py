@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame, monotone_stamp
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factors, gaussian_bw, key,
@@ -42,7 +42,8 @@ class BatchEstimator:
 
     Options: observation, markers, prior_sigma_b/_w, motion_sigma_b/_w (as
     the smoother), max_iterations, relative_tolerance, covariance,
-    provisional ("last" | "smoother"), plus FactorOptions.
+    provisional ("last" | "smoother"), fps (the time step of frames without a
+    stamp, for the edge-bias chain), plus FactorOptions.
     """
 
     name = "batch"
@@ -85,8 +86,7 @@ class BatchEstimator:
 
     def step(self, frame: Frame, observation) -> Estimate:
         self.frames.append((np.asarray(frame.q, float).copy(), observation))
-        stamp = float(frame.stamp) if frame.stamp is not None else float("nan")
-        self.stamps.append(stamp if np.isfinite(stamp) else len(self.stamps) / self.fps)
+        self.stamps.append(monotone_stamp(frame.stamp, self.stamps[-1] if self.stamps else None, self.fps))
         if self.online is not None:
             E = self.online.step(frame, observation).E
         else:
@@ -104,7 +104,7 @@ class BatchEstimator:
                 graph.add(gtsam.PriorFactorPose3(key(0), gtsam.Pose3(self.E0), self.prior_noise))
             else:
                 graph.add(gtsam.BetweenFactorPose3(key(k - 1), key(k), gtsam.Pose3(), self.motion_noise))
-            for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.model):
+            for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.model, self.E0):
                 graph.add(f)
             values.insert(key(k), gtsam.Pose3(self.initial[k]))
             if self.bias:

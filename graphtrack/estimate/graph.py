@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.edge_bias import bias_key, bias_prior_factor, bias_sigmas, bias_transition_factor, transition
+from factors.edge_bias import (bias_key, bias_prior_factor, bias_sigmas, bias_transition_factor,
+                               reference_direction, transition)
 from factors.limb import LimbPairing, ShaftAxis
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
@@ -185,22 +186,25 @@ def edge_bias_factors(k: int, dt: float | None, opts: FactorOptions) -> list:
 
 
 def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
-                  opts: FactorOptions, model: str | None = None) -> list:
+                  opts: FactorOptions, model: str | None = None, E_ref: np.ndarray | None = None) -> list:
     """The measurement factors of frame k (may be empty: no detections):
     :func:`frame_factor_groups`' shaft factors, then its marker factors."""
-    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, model)
+    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, model, E_ref)
     return shaft + markers
 
 
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
-                        opts: FactorOptions, model: str | None = None) -> tuple[list, list]:
+                        opts: FactorOptions, model: str | None = None,
+                        E_ref: np.ndarray | None = None) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
     edge; polar models: one :func:`factors.line_parameter.line_parameter_factor`
     per detected line; plus one :func:`factors.marker.marker_factor` for all
     marker detections. The shaft axis / marker points are the forward
-    kinematics of this frame's readings q (fixed data).
+    kinematics of this frame's readings q (fixed data). ``E_ref`` (the
+    estimator's hand-eye prior E_0) orients the edge-bias slope terms
+    (:func:`factors.edge_bias.reference_direction`), the same way in every frame.
     """
     if observation is None:
         return [], []
@@ -228,6 +232,9 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
             sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]
             sets = [px for px in sets if len(px)]
             pairing = LimbPairing() if len(sets) > 1 else None
+            direction = None
+            if b is not None and E_ref is not None:
+                direction = reference_direction(np.asarray(E_ref, float), F.shaft_p0[0], F.shaft_d[0], K)
             for px in sets:
                 if opts.max_pixels and len(px) > opts.max_pixels:
                     px = px[np.linspace(0, len(px) - 1, opts.max_pixels).astype(int)]
@@ -235,7 +242,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                 if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
                     w = opts.pixel_effective_count / len(px)  # the m pixels count as n_eff
                 f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w,
-                                        b if model not in POLAR_MODELS else None)
+                                        b if model not in POLAR_MODELS else None, direction)
                 if f is not None:
                     out.append(f)
     if want_markers and len(F.points):

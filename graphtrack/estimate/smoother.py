@@ -55,7 +55,7 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame, monotone_stamp
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
                                        key, left_from_right_cov, split_options)
@@ -115,8 +115,9 @@ class FixedLagSmootherEstimator:
             p = gtsam.ISAM2Params()
             p.relinearizeSkip = 1
             if self.bias:
-                # b enters the factors linearly: relinearising for its moves (px) would
-                # re-evaluate every pixel factor of the window each frame (10x slower)
+                # b enters the residuals linearly (only the robust weights depend on it,
+                # and they stay at b's linearisation point): relinearising for its moves
+                # (px) re-evaluated every pixel factor of the window each frame (10x slower)
                 th = gtsam.ISAM2ThresholdMap()
                 th.insert(("x", np.full(6, float(relinearize_threshold))))
                 th.insert(("b", np.full(BIAS_DIM, 1e3)))
@@ -139,13 +140,8 @@ class FixedLagSmootherEstimator:
 
     # -- helpers ---------------------------------------------------------------------
     def _stamp(self, frame: Frame) -> float:
-        s = float(frame.stamp) if frame.stamp is not None else float("nan")
-        if not np.isfinite(s):
-            s = (self.k + 1) / self.fps
-        if self.last_stamp is not None and s <= self.last_stamp:
-            s = self.last_stamp + 1e-6           # keep the lag window monotone
-        self.last_stamp = s
-        return s
+        self.last_stamp = monotone_stamp(frame.stamp, self.last_stamp, self.fps)
+        return self.last_stamp
 
     def _marginal(self, x: int, pose):
         gtsam = self.gtsam
@@ -214,7 +210,7 @@ class FixedLagSmootherEstimator:
         else:
             graph.add(gtsam.BetweenFactorPose3(key(k - 1), x, gtsam.Pose3(), self.motion_noise))
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self.fopts, self.model)
+                                             self.fopts, self.model, self.E0)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen
