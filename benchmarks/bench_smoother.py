@@ -6,9 +6,10 @@ Prints and fills ``results``: median / p90 online update (ms per frame) at
 lags 0.5 ... 5 s with ~500 shaft pixels + markers, the 1 s-lag accuracy and
 the time-averaged NEES of that one sequence (informative only: its frames are
 correlated), the Monte-Carlo NEES over ``nees_runs`` independent runs (the
-consistency target, :mod:`graphtrack.eval.consistency`), the start-up
-success rate from hand-eye errors drawn from the prior, and the batch
-refinement time of ``n_batch`` frames.
+consistency target, :mod:`graphtrack.eval.consistency`), the update time
+with and without the edge-bias state (interleaved runs), the start-up
+success rate from hand-eye errors drawn from the prior (also without the
+edge-bias state), and the batch refinement time of ``n_batch`` frames.
 """
 from __future__ import annotations
 
@@ -60,21 +61,40 @@ def start_up(results: dict, runs: int = 100, frames: int = 41) -> None:
 
     scene = make_scene()
     pick = np.random.default_rng(0)
-    ok = {"smoother": 0, "pf": 0}
+    ok = {"smoother": 0, "smoother_no_edge_bias": 0, "pf": 0}
     for r in range(runs):
         err = pick.standard_normal(6) * np.repeat([5e-3, 0.035], 3)
         robot, cam, E0, seq = sequence(frames, seed=1000 + r, scene=scene, handeye_error=err,
                                        walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5, marker_noise=2.0,
                                        pixels_per_edge=60)
         ctx = TrackingContext(robot, cam, E0)
-        for name, est in (("smoother", FixedLagSmootherEstimator(ctx)), ("pf", ParticleFilter(ctx, seed=r))):
+        for name, est in (("smoother", FixedLagSmootherEstimator(ctx)),
+                          ("smoother_no_edge_bias", FixedLagSmootherEstimator(ctx, edge_bias=False)),
+                          ("pf", ParticleFilter(ctx, seed=r))):
             for f in seq:
                 e = est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), _obs(f))
             ok[name] += bool(np.linalg.norm(left_error(seq[-1].E_true, e.E)[:3]) < 3e-3)
     for name, n in ok.items():
         results[f"start_up_within_3mm_{name}"] = n / runs
     print(f"start-up from prior-drawn hand-eye errors, within 3 mm at frame {frames - 1}: "
-          f"smoother {ok['smoother']}/{runs}, particle filter {ok['pf']}/{runs}", flush=True)
+          f"smoother {ok['smoother']}/{runs} ({ok['smoother_no_edge_bias']}/{runs} without the edge-bias state), "
+          f"particle filter {ok['pf']}/{runs}", flush=True)
+
+
+def edge_bias_cost(results: dict, ctx, frames, rounds: int = 3) -> None:
+    """Median update at 1 s lag with and without the edge-bias state, runs interleaved
+    (the shared machine's speed drifts by tens of per cent between runs)."""
+    meds = {True: [], False: []}
+    for _ in range(rounds):
+        for on in (True, False):
+            est = FixedLagSmootherEstimator(ctx, lag=1.0, edge_bias=on)
+            for f in frames:
+                est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), _obs(f))
+            meds[on].append(float(np.median(est.timings_ms[30:])))
+    results["online_lag1.0_edge_bias_ab_ms"] = float(np.median(meds[True]))
+    results["online_lag1.0_no_edge_bias_ab_ms"] = float(np.median(meds[False]))
+    print(f"lag  1.0 s, interleaved: update median {results['online_lag1.0_edge_bias_ab_ms']:.2f} ms with the "
+          f"edge-bias state, {results['online_lag1.0_no_edge_bias_ab_ms']:.2f} ms without", flush=True)
 
 
 def run(results: dict, n_online: int = 300, n_batch: int = 1800, lags=(0.5, 1.0, 2.0, 5.0),
@@ -101,6 +121,7 @@ def run(results: dict, n_online: int = 300, n_batch: int = 1800, lags=(0.5, 1.0,
         print(f"lag {lag:4.1f} s: update median {np.median(t):6.2f} ms, p90 {np.percentile(t, 90):6.2f} ms, "
               f"rms {results[f'online_lag{lag}_rms_mm']:.3f} mm / {results[f'online_lag{lag}_rms_deg']:.3f} deg, "
               f"NEES of this sequence {results[f'online_lag{lag}_sequence_mean_nees']:.2f}", flush=True)
+    edge_bias_cost(results, ctx, frames)
     if nees_runs:
         nees_monte_carlo(results, nees_runs)
     if start_up_runs:

@@ -42,7 +42,9 @@ deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
     b_0 ~ N(0, diag(sigma^2)),
     b_k = phi b_{k-1} + w_k,  phi = exp(-dt / tau),  w_k ~ N(0, (1 - phi^2) diag(sigma^2))
 
-(dt: seconds between the frames), i.e. the prior :func:`bias_prior_factor` and
+(dt: seconds between the frames; the estimators may share one b among n
+consecutive frames, ``edge_bias_every``, and step the chain every n frames),
+i.e. the prior :func:`bias_prior_factor` and
 the transition :func:`bias_transition_factor`, a linear factor with residual
 (b_k - phi b_{k-1}) / (sigma sqrt(1 - phi^2)) and constant Jacobians.
 """

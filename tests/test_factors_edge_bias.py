@@ -146,15 +146,19 @@ def test_transition_by_hand():
     assert np.allclose(A[:, :4], -phi * np.diag(1 / q)) and np.allclose(A[:, 4:], np.diag(1 / q))
 
 
-def test_batch_marginals_with_bias_match_gtsam():
-    """The batch's O(n) block-tridiagonal marginals over (E_k, b_k) equal gtsam.Marginals."""
-    robot, cam, E0, frames = sequence(25, seed=5, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5,
+@pytest.mark.parametrize("every", [1, 5])
+def test_batch_marginals_with_bias_match_gtsam(every):
+    """The batch's O(n) block-tridiagonal marginals over blocks of frames (E_k ..., b_j)
+    equal gtsam.Marginals: one bias per frame, and one per 5 frames with a partial last
+    block (23 frames) and a frame without detections."""
+    robot, cam, E0, frames = sequence(23, seed=5, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5,
                                       marker_noise=2.0, pixels_per_edge=40)
     est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities",
-                         edge_bias=True)
+                         edge_bias=True, edge_bias_every=every)
     for f in frames:
-        est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]),
-                 Observation("line-intensities", pixels=f.pixels, markers=f.markers))
+        obs = (Observation("line-intensities") if f.index == 7
+               else Observation("line-intensities", pixels=f.pixels, markers=f.markers))
+        est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), obs)
     est.finish()
     graph, values = est.build()
     from graphtrack.estimate.lm import levenberg_marquardt
@@ -162,7 +166,8 @@ def test_batch_marginals_with_bias_match_gtsam():
     result = levenberg_marquardt(graph, values, 30, 1e-8).values
     ours = est._chain_marginals(graph, result, len(frames))
     ref = gtsam.Marginals(graph, result)
-    for k in (0, 7, 24):
+    assert sum(chr(gtsam.Symbol(k).chr()) == "b" for k in values.keys()) == (len(frames) + every - 1) // every
+    for k in (0, 7, 22):
         C = ref.marginalCovariance(gtsam.symbol("x", k))
         assert np.allclose(ours[k], C, rtol=1e-6, atol=1e-14)
 

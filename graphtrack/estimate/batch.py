@@ -3,8 +3,9 @@
 Same graph as the online smoother (:mod:`graphtrack.estimate.smoother`):
 prior on frame 0 at E_0, a BetweenFactorPose3 between every pair of
 consecutive frames (always, so gaps in the detections stay solvable), each
-frame's robust detection factors, and for the pixel models each frame's
-edge-bias vector b_k with its Gauss-Markov chain (:mod:`factors.edge_bias`). ``step`` only records the frame's readings
+frame's robust detection factors, and for the pixel models the edge-bias
+vectors (one per ``edge_bias_every`` frames) with their Gauss-Markov chain
+(:mod:`factors.edge_bias`). ``step`` only records the frame's readings
 and observation and returns a provisional estimate (the previous one: E_0 at
 first, or the online smoother's when ``provisional="smoother"``); ``finish``
 runs Levenberg-Marquardt over all frames (:mod:`graphtrack.estimate.lm`,
@@ -12,8 +13,7 @@ gtsam's iteration driven from Python so that the factor callbacks see the
 Values without pybind11 copying it into each one), initialised from the
 provisional estimates, and returns the refined Estimates with the marginal
 covariance of each E_t in the left (b, w) perturbation (``covariance=True``;
-computed with one sparse block-tridiagonal pass over the per-frame states
-(E_k, b_k), O(n)).
+computed with one sparse block-tridiagonal pass over blocks of frames, O(n)).
 
 Defaults (measured on 600 synthetic frames, one core): initialised from E_0
 with a relative tolerance of 1e-6, LM took 8 iterations; initialised from the
@@ -70,6 +70,7 @@ class BatchEstimator:
         self.covariance = bool(covariance)
         self.fps = float(fps)
         self.bias = self.fopts.uses_edge_bias(observation)
+        self.every = max(int(self.fopts.edge_bias_every), 1) if self.bias else 1
         self.frames: list[tuple[np.ndarray, object]] = []
         self.stamps: list[float] = []
         self.initial: list[np.ndarray] = []
@@ -107,62 +108,72 @@ class BatchEstimator:
             for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.model, self.E0):
                 graph.add(f)
             values.insert(key(k), gtsam.Pose3(self.initial[k]))
-            if self.bias:
-                dt = None if k == 0 else self.stamps[k] - self.stamps[k - 1]
-                for f in edge_bias_factors(k, dt, self.fopts):
+            if self.bias and k % self.every == 0:     # the bias of frames k .. k + every - 1
+                j = k // self.every
+                dt = None if k == 0 else self.stamps[k] - self.stamps[k - self.every]
+                for f in edge_bias_factors(j, dt, self.fopts):
                     graph.add(f)
-                values.insert(bias_key(k), np.zeros(BIAS_DIM))
+                values.insert(bias_key(j), np.zeros(BIAS_DIM))
         return graph, values
 
     def _chain_marginals(self, graph, result, n: int) -> list[np.ndarray]:
         """Diagonal 6x6 E blocks of the inverse information of the chain (right coordinates).
 
-        Frame k's state is (E_k) or (E_k, b_k) (d = 6 or 10 coordinates) and every
-        factor touches frame k alone or frames k - 1 and k, so the Gauss-Newton
-        information is block tridiagonal in the frames: forward/backward block
-        elimination (Rauch-Tung-Striebel form) gives all diagonal blocks of its
-        inverse in O(n); E_k's marginal is the first 6 x 6 of frame k's.
+        Group the frames in blocks of ``every`` (the frames sharing one edge-bias
+        vector; one frame per block without the state): block j's state is
+        (E_k for its frames [, b_j]) and every factor touches one block or two
+        consecutive ones, so the Gauss-Newton information is block tridiagonal
+        in the blocks: forward/backward block elimination (Rauch-Tung-Striebel
+        form) gives all diagonal blocks of its inverse in O(n); E_k's marginal is
+        its 6 x 6 of its block's.
         """
         gtsam = self.gtsam
-        d = 6 + (BIAS_DIM if self.bias else 0)
-        D = np.zeros((n, d, d))
-        U = np.zeros((max(n - 1, 0), d, d))   # block (k, k+1)
+        every = self.every
+        nb = (n + every - 1) // every
+        frames_in = [min(every, n - j * every) for j in range(nb)]
+        dims = [6 * m + (BIAS_DIM if self.bias else 0) for m in frames_in]
+        D = [np.zeros((d, d)) for d in dims]
+        U = [np.zeros((dims[j], dims[j + 1])) for j in range(nb - 1)]   # block (j, j+1)
         lin = graph.linearize(result)
 
-        def place(k):   # (frame, first coordinate in the frame's state)
-            sym = gtsam.Symbol(k)
-            return int(sym.index()), (0 if chr(sym.chr()) == "x" else 6)
+        def place(kk):   # (block, first coordinate in the block's state, dimension)
+            sym = gtsam.Symbol(kk)
+            i = int(sym.index())
+            if chr(sym.chr()) == "x":
+                return i // every, 6 * (i % every), 6
+            return i, 6 * frames_in[i], BIAS_DIM
 
         for i in range(lin.size()):
             gf = lin.at(i)
             if gf is None:
                 continue
             H = gf.augmentedInformation()[:-1, :-1]
-            keys = list(gf.keys())
             spans, at = [], 0
-            for kk in keys:
-                dim = 6 if chr(gtsam.Symbol(kk).chr()) == "x" else BIAS_DIM
-                spans.append((place(kk), slice(at, at + dim), dim))
+            for kk in gf.keys():
+                blk, off, dim = place(kk)
+                spans.append((blk, off, slice(at, at + dim), dim))
                 at += dim
-            for (fa, oa), sa, da in spans:
-                for (fb, ob), sb, db in spans:
-                    blk = H[sa, sb]
-                    if fa == fb:
-                        D[fa, oa:oa + da, ob:ob + db] += blk
-                    elif fa + 1 == fb:
-                        U[fa, oa:oa + da, ob:ob + db] += blk
-        # forward: S_k = D_k - U_{k-1}^T S_{k-1}^-1 U_{k-1}
-        Sinv = np.zeros_like(D)
-        Sinv[0] = np.linalg.inv(D[0])
-        for k in range(1, n):
-            Sinv[k] = np.linalg.inv(D[k] - U[k - 1].T @ Sinv[k - 1] @ U[k - 1])
-        # backward: P_n = S_n^-1, P_k = S_k^-1 + G_k P_{k+1} G_k^T, G_k = S_k^-1 U_k
-        P = np.zeros_like(D)
-        P[n - 1] = Sinv[n - 1]
-        for k in range(n - 2, -1, -1):
-            G = Sinv[k] @ U[k]
-            P[k] = Sinv[k] + G @ P[k + 1] @ G.T
-        return [p[:6, :6] for p in P]
+            for ba, oa, sa, da in spans:
+                for bb, ob, sb, db in spans:
+                    if ba == bb:
+                        D[ba][oa:oa + da, ob:ob + db] += H[sa, sb]
+                    elif ba + 1 == bb:
+                        U[ba][oa:oa + da, ob:ob + db] += H[sa, sb]
+        # forward: S_j = D_j - U_{j-1}^T S_{j-1}^-1 U_{j-1}
+        Sinv = [np.linalg.inv(D[0])]
+        for j in range(1, nb):
+            Sinv.append(np.linalg.inv(D[j] - U[j - 1].T @ Sinv[j - 1] @ U[j - 1]))
+        # backward: P_last = S_last^-1, P_j = S_j^-1 + G_j P_{j+1} G_j^T, G_j = S_j^-1 U_j
+        P = [None] * nb
+        P[nb - 1] = Sinv[nb - 1]
+        for j in range(nb - 2, -1, -1):
+            G = Sinv[j] @ U[j]
+            P[j] = Sinv[j] + G @ P[j + 1] @ G.T
+        out = []
+        for k in range(n):
+            o = 6 * (k % every)
+            out.append(P[k // every][o:o + 6, o:o + 6])
+        return out
 
     def finish(self) -> list[Estimate]:
         n = len(self.frames)

@@ -125,24 +125,31 @@ class FactorOptions:
     conservative. Inflating sigma instead (sigma sqrt(m / n)) also widened the
     robust kernel to ~10 px and let 20 % outlier pixels pull the estimate.
 
-    edge_bias (pixel models only): each frame carries the detector's edge-bias
+    edge_bias (pixel models only): the frames carry the detector's edge-bias
     vector b = (lateral offset, lateral slope, width offset, width slope) px
     (:mod:`factors.edge_bias`), a Gauss-Markov process with stationary spreads
     edge_bias_sigma_lateral / _lateral_slope / _width / _width_slope (px) and
-    time constant edge_bias_tau (s). The tempering above caps what one frame's
-    edge says; the bias state stops the frames' shared error from adding up
-    over time. Measured on the eight tuning recordings (pixel models, mean tip
-    error, smoother / batch): no state 2.84 / 2.85 px; spreads 0.3, 0.3, 3, 3
-    px, tau 2 s (the defaults) 2.44 / 2.59; independent per-limb offsets and
-    slopes of 1 px 2.77 / 2.79; lateral 1 px and width 0.3 px 3.51 / 3.40 (a
-    loose lateral term lets the shaft slide along its image, which two markers
-    hold poorly); width spreads 2 px:
-    2.49 / 2.62, 5 px: 2.42 / 2.55; the time constant matters little (spreads
-    0.3, 0.3, 2, 2 px: tau 0.5 s 2.43 / 2.58; spreads 0.3, 0.3, 1, 1 px: tau 2 s
-    2.60 / 2.69, 10 s 2.63 / 2.77). It costs the start-up from large
-    errors: from hand-eye errors drawn from the prior (synthetic) 86 of 100
-    runs are within 3 mm at frame 40, against 99 without the state (the depth
-    is then held by the markers, which wait for the gate).
+    time constant edge_bias_tau (s), one vector per edge_bias_every frames
+    (piecewise constant; the chain steps every n frames). The tempering above
+    caps what one frame's edge says; the bias state stops the frames' shared
+    error from adding up over time. Measured on the eight tuning recordings
+    (learned detector, pixel models, mean tip error, smoother / batch; a bias
+    vector per frame unless said): no state 2.84 / 2.85 px; spreads 0.3, 0.3,
+    3, 3 px, tau 2 s (the defaults) 2.44 / 2.59, one vector per 5 frames (the
+    default) 2.56 / 2.66, per 10 frames 2.59 (smoother); independent per-limb
+    offsets and slopes of 1 px 2.77 / 2.79; lateral 1 px and width 0.3 px
+    3.51 / 3.40 (a loose lateral term lets the shaft slide along its image,
+    which two markers hold poorly); width spreads 2 px 2.49 / 2.62, 5 px
+    2.42 / 2.55; the time constant matters little (spreads 0.3, 0.3, 2, 2 px:
+    tau 0.5 s 2.43 / 2.58; spreads 0.3, 0.3, 1, 1 px: tau 2 s 2.60 / 2.69,
+    10 s 2.63 / 2.77). With the Canny detector's pixel sets: no state 10.16 /
+    10.07 px, the defaults (per frame) 3.72 / 3.72. A vector per frame doubled
+    the smoother's update (1 s lag, synthetic, interleaved runs: 3.3 against
+    1.7 ms without the state); one per 5 frames: 2.2 against 1.4 ms. The
+    state costs the start-up from large errors: from hand-eye errors drawn
+    from the prior (synthetic) 90 of 100 runs are within 3 mm at frame 40,
+    against 99 without it (the depth is then held by the markers, which wait
+    for the gate).
     """
 
     pixel_sigma: float = 1.5
@@ -162,6 +169,7 @@ class FactorOptions:
     edge_bias_sigma_width: float = 3.0
     edge_bias_sigma_width_slope: float = 3.0
     edge_bias_tau: float = 2.0
+    edge_bias_every: int = 5
 
     @property
     def kernel(self):
@@ -216,7 +224,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     F = base_features(robot, np.asarray(q, float))
     kern = opts.kernel
     x = key(k)
-    b = bias_key(k) if opts.uses_edge_bias(model) else None
+    b = bias_key(k // max(int(opts.edge_bias_every), 1)) if opts.uses_edge_bias(model) else None
     model = observation.model or model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])

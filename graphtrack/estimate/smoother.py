@@ -10,9 +10,10 @@ One gtsam.Pose3 E_t per frame (key x_t). Factors:
   the particle filter's Gaussian random walk;
 - the frame's detections (:func:`graphtrack.estimate.graph.frame_factors`):
   shaft pixels / lines and markers, robust;
-- pixel models: the frame's edge-bias vector b_t (key b_t, same timestamp as
-  x_t), its prior at frame 0 and the Gauss-Markov transition from b_{t-1}
-  (:mod:`factors.edge_bias`); the shaft-pixel factors are on (x_t, b_t).
+- pixel models: the edge-bias vector b_j shared by frames jn .. jn + n - 1
+  (n = ``edge_bias_every``, key b_j, its timestamp that of its newest frame),
+  its prior at frame 0 and the Gauss-Markov transition from b_{j-1}
+  (:mod:`factors.edge_bias`); the shaft-pixel factors are on (x_t, b_j).
 
 Start-up: the first frame with detections gets its initial value from
 Levenberg-Marquardt on that frame alone (its factors + the prior at the
@@ -111,6 +112,7 @@ class FixedLagSmootherEstimator:
         self.covariance = bool(covariance)
         self.bias = self.fopts.uses_edge_bias(observation)
         self.last_bias = np.zeros(BIAS_DIM)
+        self.bias_stamp = None
         if self.kind == "isam2":
             p = gtsam.ISAM2Params()
             p.relinearizeSkip = 1
@@ -178,8 +180,9 @@ class FixedLagSmootherEstimator:
             v = gtsam.Values()
             v.insert(x, pose)
             if self.bias:           # the shaft factors are on (x, b): b at its stationary prior
-                g.add(bias_prior_factor(k, self.fopts.edge_bias_sigmas))
-                v.insert(bias_key(k), np.zeros(BIAS_DIM))
+                j = k // max(int(self.fopts.edge_bias_every), 1)
+                g.add(bias_prior_factor(j, self.fopts.edge_bias_sigmas))
+                v.insert(bias_key(j), np.zeros(BIAS_DIM))
             try:
                 pose = gtsam.LevenbergMarquardtOptimizer(g, v, params).optimize().atPose3(x)
             except RuntimeError:
@@ -199,12 +202,16 @@ class FixedLagSmootherEstimator:
         previous = self.last_stamp
         stamp = self._stamp(frame)
         if self.bias:
-            dt = None if k == 0 else stamp - previous
-            for f in edge_bias_factors(k, dt, self.fopts):
-                graph.add(f)
-            phi = 0.0 if dt is None else transition(dt, self.fopts.edge_bias_tau)
-            values.insert(bias_key(k), phi * self.last_bias)
-            stamps.insert((bias_key(k), stamp))
+            every = max(int(self.fopts.edge_bias_every), 1)
+            j = k // every
+            if k % every == 0:
+                dt = None if k == 0 else stamp - self.bias_stamp
+                for f in edge_bias_factors(j, dt, self.fopts):
+                    graph.add(f)
+                phi = 0.0 if dt is None else transition(dt, self.fopts.edge_bias_tau)
+                values.insert(bias_key(j), phi * self.last_bias)
+                self.bias_stamp = stamp
+            stamps.insert((bias_key(j), stamp))
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
@@ -234,7 +241,8 @@ class FixedLagSmootherEstimator:
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
         if self.bias:
-            self.last_bias = np.asarray(self.smoother.calculateEstimateVector(bias_key(k)), float)
+            j = k // max(int(self.fopts.edge_bias_every), 1)
+            self.last_bias = np.asarray(self.smoother.calculateEstimateVector(bias_key(j)), float)
         cov = self._marginal(x, pose) if self.covariance else None
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)
