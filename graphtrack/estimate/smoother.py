@@ -199,7 +199,6 @@ class FixedLagSmootherEstimator:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-        previous = self.last_stamp
         stamp = self._stamp(frame)
         if self.bias:
             every = max(int(self.fopts.edge_bias_every), 1)
