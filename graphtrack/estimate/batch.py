@@ -70,7 +70,7 @@ class BatchEstimator:
         self.covariance = bool(covariance)
         self.fps = float(fps)
         self.bias = self.fopts.uses_edge_bias(observation)
-        self.every = max(int(self.fopts.edge_bias_every), 1) if self.bias else 1
+        self.every = self.fopts.edge_bias_period if self.bias else 1
         self.frames: list[tuple[np.ndarray, object]] = []
         self.stamps: list[float] = []
         self.initial: list[np.ndarray] = []

@@ -180,6 +180,11 @@ class FactorOptions:
         return bool(self.edge_bias) and model not in POLAR_MODELS
 
     @property
+    def edge_bias_period(self) -> int:
+        """Frames per edge-bias vector: frame k's is vector k // period."""
+        return max(int(self.edge_bias_every), 1)
+
+    @property
     def edge_bias_sigmas(self) -> np.ndarray:
         return bias_sigmas(self.edge_bias_sigma_lateral, self.edge_bias_sigma_lateral_slope,
                            self.edge_bias_sigma_width, self.edge_bias_sigma_width_slope)
@@ -224,7 +229,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     F = base_features(robot, np.asarray(q, float))
     kern = opts.kernel
     x = key(k)
-    b = bias_key(k // max(int(opts.edge_bias_every), 1)) if opts.uses_edge_bias(model) else None
+    b = bias_key(k // opts.edge_bias_period) if opts.uses_edge_bias(model) else None
     model = observation.model or model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
@@ -249,8 +254,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                 w = 1.0
                 if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
                     w = opts.pixel_effective_count / len(px)  # the m pixels count as n_eff
-                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w,
-                                        b if model not in POLAR_MODELS else None, direction)
+                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w, b, direction)
                 if f is not None:
                     out.append(f)
     if want_markers and len(F.points):

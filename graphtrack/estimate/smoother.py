@@ -111,8 +111,7 @@ class FixedLagSmootherEstimator:
         self.fps = float(fps)
         self.covariance = bool(covariance)
         self.bias = self.fopts.uses_edge_bias(observation)
-        self.last_bias = np.zeros(BIAS_DIM)
-        self.bias_stamp = None
+        self.bias_stamp = None        # stamp of the frame that opened the newest bias vector
         if self.kind == "isam2":
             p = gtsam.ISAM2Params()
             p.relinearizeSkip = 1
@@ -180,7 +179,7 @@ class FixedLagSmootherEstimator:
             v = gtsam.Values()
             v.insert(x, pose)
             if self.bias:           # the shaft factors are on (x, b): b at its stationary prior
-                j = k // max(int(self.fopts.edge_bias_every), 1)
+                j = k // self.fopts.edge_bias_period
                 g.add(bias_prior_factor(j, self.fopts.edge_bias_sigmas))
                 v.insert(bias_key(j), np.zeros(BIAS_DIM))
             try:
@@ -201,16 +200,19 @@ class FixedLagSmootherEstimator:
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         stamp = self._stamp(frame)
         if self.bias:
-            every = max(int(self.fopts.edge_bias_every), 1)
+            every = self.fopts.edge_bias_period
             j = k // every
-            if k % every == 0:
+            if k % every == 0:        # open vector j, starting from phi times vector j - 1's estimate
+                b0 = np.zeros(BIAS_DIM)
                 dt = None if k == 0 else stamp - self.bias_stamp
+                if dt is not None:
+                    b0 = transition(dt, self.fopts.edge_bias_tau) * np.asarray(
+                        self.smoother.calculateEstimateVector(bias_key(j - 1)), float)
                 for f in edge_bias_factors(j, dt, self.fopts):
                     graph.add(f)
-                phi = 0.0 if dt is None else transition(dt, self.fopts.edge_bias_tau)
-                values.insert(bias_key(j), phi * self.last_bias)
+                values.insert(bias_key(j), b0)
                 self.bias_stamp = stamp
-            stamps.insert((bias_key(j), stamp))
+            stamps.insert((bias_key(j), stamp))     # kept in the window while frames use it
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
@@ -239,9 +241,6 @@ class FixedLagSmootherEstimator:
                 self.smoother.update()
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
-        if self.bias:
-            j = k // max(int(self.fopts.edge_bias_every), 1)
-            self.last_bias = np.asarray(self.smoother.calculateEstimateVector(bias_key(j)), float)
         cov = self._marginal(x, pose) if self.covariance else None
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)
