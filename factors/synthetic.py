@@ -10,7 +10,9 @@ camera-frame (b, w) parameterisation). Per frame:
   ``pixel_noise`` px across the line, plus a fraction ``outliers`` of uniform
   stray pixels in the tool's neighbourhood;
 - lines: (rho, theta) of the true limbs (+ noise) for the polar models;
-- markers: the markers facing the camera projected with the true E (+ noise).
+- markers: the markers facing the camera seen through the true E (+ noise): a
+  painted disc (a point feature with a radius) at the centroid of its image,
+  a point at its projection.
 """
 from __future__ import annotations
 
@@ -20,8 +22,9 @@ import numpy as np
 
 from graphtrack.geometry.camera import Camera
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
+from graphtrack.geometry.painted_marker import disc_centroid
 from graphtrack.geometry.se3 import bw_to_matrix, invert
-from graphtrack.robot.features import base_features
+from graphtrack.robot.features import base_features, marker_discs
 from graphtrack.robot.psm import psm_large_needle_driver
 
 Q0 = np.array([0.15, -0.10, 0.14, 0.40, 0.15, -0.10, 0.40])
@@ -95,12 +98,18 @@ def observe(robot, cam: Camera, q: np.ndarray, E: np.ndarray, rng: np.random.Gen
         pixels.append(u[inside])
     lines = np.stack([rho + rng.normal(0, line_noise[0], 2) if line_noise[0] else rho,
                       theta + rng.normal(0, line_noise[1], 2) if line_noise[1] else theta], -1)
-    # markers facing the camera
+    # markers facing the camera: a painted disc (a point feature with a radius) at the
+    # centroid of its image, a point at its projection
     pts = F.points
     axis_pt = p0 + ((pts - p0) @ d)[:, None] * d
     normal = pts - axis_pt
     facing = np.sum(normal * (-pts), axis=1) > 0
-    mk = cam.project_undistorted(pts[facing]) if facing.any() else np.zeros((0, 2))
+    mk = cam.project_undistorted(pts) if len(pts) else np.zeros((0, 2))
+    discs = marker_discs(robot, F)
+    if discs is not None:
+        is_disc = np.any(discs[1] != 0, axis=(1, 2))
+        mk[is_disc] = disc_centroid(discs[0][is_disc], discs[1][is_disc], cam.K)
+    mk = mk[facing]
     if marker_noise > 0 and len(mk):
         mk = mk + rng.normal(0, marker_noise, mk.shape)
     return pixels, lines, mk, bool(valid)

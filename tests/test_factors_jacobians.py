@@ -177,3 +177,35 @@ def test_degenerate_view_is_silent(scene):
         for fn in (ShaftPixelsError(f.pixels[0], ax, cam.K), LineParameterError(f.lines[0], ax, cam.K)):
             e, J = fn.evaluate(E0)
             assert np.all(e == 0) and np.all(J == 0) and fn.limb == -1
+
+
+@pytest.mark.parametrize("kernel", ["none", "cauchy"])
+def test_painted_disc_marker_jacobian(scene, kernel):
+    """The disc-centroid prediction's Jacobian (weights, visibility and all), also
+    with a point feature off the shaft mixed in (kept a point)."""
+    from graphtrack.robot.features import marker_discs
+
+    robot, cam, E0, f, F, axis = scene
+    discs = marker_discs(robot, F)
+    assert discs is not None and np.all(np.linalg.norm(discs[1], axis=-1) > 0.99)
+    pose = gtsam.Pose3(f.E_true).retract(np.array([1e-3, -5e-4, 2e-4, 5e-4, 1e-4, -2e-4]))
+    fn = MarkerError(f.markers, F.points, cam.K, 2.0, 60.0, kernel, discs)
+    e, _ = check(fn, pose)
+    assert np.all(fn.assoc >= 0) and np.any(e != 0)
+    # marker 0 turned into a point: the same as the point model for it
+    X, N = discs[0].copy(), discs[1].copy()
+    X[0], N[0] = F.points[0], 0.0
+    fn = MarkerError(f.markers, F.points, cam.K, 2.0, 60.0, kernel, (X, N))
+    check(fn, pose)
+    c, usable, _ = fn.predict(pose.matrix())
+    c_point, _, _ = MarkerError(f.markers, F.points, cam.K).predict(pose.matrix())
+    np.testing.assert_allclose(c[0], c_point[0], atol=1e-9)
+    # a visible disc is off its centre's projection; a hidden one is predicted at it
+    from graphtrack.geometry.painted_marker import disc_centroid
+
+    E = pose.matrix()
+    hidden = np.isnan(disc_centroid(X @ E[:3, :3].T + E[:3, 3], N @ E[:3, :3].T, cam.K)[:, 0])
+    hidden[0] = False
+    assert hidden.any() and not hidden[1:].all()
+    gap = np.linalg.norm(c - c_point, axis=1)
+    assert np.all(gap[1:][~hidden[1:]] > 1e-3) and np.all(gap[hidden] < 1e-9)

@@ -23,6 +23,16 @@ def test_roundtrip(tmp_path):
     r = load_robot_json(tmp_path / "robot.json")
     assert r.n_dh == 6 and r.has_gripper and r.n_links == 8 and r.tool_tip.link == 7
     assert len(r.point_features) == 4 and r.shaft_features[0].radius == 0.004
+    assert all(p.radius == 0.0011 for p in r.point_features)     # the painted discs
+
+
+def test_marker_radius_is_optional(tmp_path):
+    d = good()
+    for p in d["point_features"]:
+        p.pop("radius")                 # the format doc's point features: name, link, position
+    r = load_robot_json(write(tmp_path, d))
+    assert all(p.radius == 0.0 for p in r.point_features)
+    assert "radius" not in r.to_json()["point_features"][0]
 
 
 @pytest.mark.parametrize("mutate,needle", [
@@ -32,6 +42,8 @@ def test_roundtrip(tmp_path):
     (lambda d: d["DH_params"][0].update(A="x"), "joint 1: A"),
     (lambda d: d["point_features"][0].update(link=12), "point_features[0]: link"),
     (lambda d: d["shaft_features"][0].update(position=[0, 0]), "shaft_features[0]: position"),
+    (lambda d: d["point_features"][1].update(radius=-0.001), "point_features[1]: radius"),
+    (lambda d: d["point_features"][1].update(radius="big"), "point_features[1]: radius"),
     (lambda d: d["tool_tip"].pop("link"), "tool_tip: link"),
     (lambda d: d.update(has_gripper="yes"), "has_gripper"),
 ])

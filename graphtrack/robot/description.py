@@ -42,11 +42,17 @@ class DHJoint:
 
 @dataclass(frozen=True)
 class PointFeature:
-    """A 3-D point (m) fixed to link ``link`` (a painted marker, the tool tip)."""
+    """A 3-D point (m) fixed to link ``link`` (a painted marker, the tool tip).
+
+    ``radius`` (m, optional robot.json key, default 0): a painted marker's disc
+    radius on the shaft surface, for the factor-graph estimators' centroid
+    model (:mod:`graphtrack.geometry.painted_marker`); 0 is a point.
+    """
 
     name: str
     link: int
     position: tuple[float, float, float]
+    radius: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -99,7 +105,8 @@ class RobotDescription:
             "DH_params": [{"type": j.type, "alpha": j.alpha, "A": j.A, "theta": j.theta,
                            "D": j.D, "offset": j.offset} for j in self.dh],
             "has_gripper": self.has_gripper,
-            "point_features": [{"name": p.name, "link": p.link, "position": list(p.position)}
+            "point_features": [{"name": p.name, "link": p.link, "position": list(p.position),
+                                **({"radius": p.radius} if p.radius > 0 else {})}
                                for p in self.point_features],
             "shaft_features": [{"name": s.name, "link": s.link, "position": list(s.position),
                                 "direction": list(s.direction), "radius": s.radius}
@@ -204,8 +211,11 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
     points = []
     for i, o in enumerate(doc.get("point_features", []) or []):
         d.where = f"point_features[{i}]: "
-        p = PointFeature(str(o.get("name", f"point_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"))
+        p = PointFeature(str(o.get("name", f"point_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"),
+                         d.get(o, "radius", default=0.0, required=False))
         _check_link(d, p.link, n_links, "link")
+        if p.radius < 0:
+            d.fail("radius", "must be >= 0 (metres; 0: a point)")
         points.append(p)
     shafts = []
     for i, o in enumerate(doc.get("shaft_features", []) or []):

@@ -115,3 +115,34 @@ def shaft_lines(cam: Features, K: np.ndarray, shaft: int = 0):
     """
     return project_cylinder(cam.shaft_p0[..., shaft, :], cam.shaft_d[..., shaft, :],
                             cam.shaft_r[shaft], K)
+
+
+def marker_discs(robot: RobotDescription, features: Features, n: int = 9):
+    """Painted-disc samples and outward normals ((M, S, 3) each, the frame of
+    ``features``, one joint reading) of the point features with a ``radius``
+    (:func:`graphtrack.geometry.painted_marker.painted_disc`, n x n grid).
+
+    A point feature is a disc when its radius is positive and it lies on the
+    surface of a shaft feature of its own link (within 5 % of that radius);
+    any other stays a point: its S samples are the point and its normals zero.
+    None when no point feature is a disc.
+    """
+    from graphtrack.geometry.painted_marker import disc_pattern, on_surface, painted_disc
+
+    P = np.asarray(features.points, float).reshape(-1, 3)
+    radii = np.array([p.radius for p in robot.point_features], float)
+    if len(P) == 0 or len(features.shaft_r) == 0 or not np.any(radii > 0):
+        return None
+    S = len(disc_pattern(1.0, n)[0])          # the same count for every radius
+    X = np.repeat(P[:, None, :], S, axis=1)
+    N = np.zeros_like(X)
+    links = np.array([p.link for p in robot.point_features])
+    todo = radii > 0
+    for s, sf in enumerate(robot.shaft_features):
+        p0, d, r = features.shaft_p0[s], features.shaft_d[s], float(features.shaft_r[s])
+        sel = todo & (links == sf.link)
+        sel[sel] = on_surface(P[sel], p0, d, r)
+        for k in np.flatnonzero(sel):
+            X[k], N[k] = (a[0] for a in painted_disc(P[k], p0, d, r, radii[k], n))
+        todo &= ~sel
+    return (X, N) if np.any(N != 0) else None

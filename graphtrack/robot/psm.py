@@ -25,6 +25,7 @@ PITCH_TO_YAW = 0.0091     # m, wrist pitch axis to yaw axis
 JAW_LENGTH = 0.0102       # m, yaw axis to the jaw tip
 SHAFT_RADIUS = 0.004      # m, 8 mm shaft
 SHAFT_END = -0.004        # m, where the shaft cylinder ends on link 4's z (the wrist begins)
+MARKER_RADIUS = 0.0011    # m, painted disc radius on the shaft surface
 
 PSM_DH = [
     DHJoint("revolute", HALF_PI, 0.0, 0.0, 0.0, HALF_PI),           # 1 outer yaw
@@ -36,7 +37,7 @@ PSM_DH = [
 ]
 
 #: Painted blue markers on the shaft near the wrist (link 4): (angle about the
-#: shaft axis, z along it), on the surface of the cylinder.
+#: shaft axis, z along it), on the surface of the cylinder; discs of MARKER_RADIUS.
 MARKER_LAYOUT = [(0.0, -0.010), (np.pi / 2, -0.016), (np.pi, -0.010), (3 * np.pi / 2, -0.016)]
 
 JOINT_LIMITS = np.array([[-1.6, 1.6], [-0.9, 0.9], [0.05, 0.24], [-4.5, 4.5],
@@ -45,7 +46,8 @@ JOINT_LIMITS = np.array([[-1.6, 1.6], [-0.9, 0.9], [0.05, 0.24], [-4.5, 4.5],
 
 def psm_large_needle_driver() -> RobotDescription:
     """The PSM + Large Needle Driver as a RobotDescription (robot.json content)."""
-    markers = [PointFeature(f"marker_{i}", 4, (SHAFT_RADIUS * np.cos(a), SHAFT_RADIUS * np.sin(a), z))
+    markers = [PointFeature(f"marker_{i}", 4, (SHAFT_RADIUS * np.cos(a), SHAFT_RADIUS * np.sin(a), z),
+                            MARKER_RADIUS)
                for i, (a, z) in enumerate(MARKER_LAYOUT)]
     shaft = ShaftFeature("shaft", 4, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), SHAFT_RADIUS)
     skeleton = [

@@ -16,8 +16,8 @@ Primitives (camera frame, metres):
 
 Painted markers are discs on the shaft surface: a shaft hit with link-4
 coordinates (angle phi, axial z) belongs to marker k when
-(r wrap(phi - phi_k))^2 + (z - z_k)^2 <= MARKER_RADIUS^2 (arc length on the
-surface, so the disc is painted, not floating).
+(r wrap(phi - phi_k))^2 + (z - z_k)^2 <= R_k^2 (arc length on the surface, so
+the disc is painted, not floating; R_k: the point feature's ``radius``).
 
 Work is limited to candidate pixels: each primitive's segment is clipped to
 the view frustum (planes pushed out by r), and only pixels whose ray lies
@@ -37,7 +37,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-MARKER_RADIUS = 0.0011  # m, painted disc radius on the shaft surface
 MARKER_ID = 100
 _SUB = np.array([-1.0, 0.0, 1.0]) / 3.0
 
@@ -182,7 +181,7 @@ class ToolRenderer:
         self.stamp = 0
         self.vignette = None if vignette is None else np.pad(vignette, 1, mode="edge").ravel()
         self.antialias = antialias
-        self.markers = np.zeros((0, 2))  # (phi, z) on the shaft, set by the scene
+        self.markers = np.zeros((0, 3))  # (phi, z, disc radius) on the shaft, set by the scene
 
     # -- candidate pixels --------------------------------------------------------------
     def _clip(self, prim: Primitive, z_near: float = 0.005):
@@ -243,17 +242,17 @@ class ToolRenderer:
         o, x4, y4, z4 = prim.frame
         z = (P - o) @ z4
         out = np.zeros(len(P), bool)
-        near = np.nonzero((z >= self.markers[:, 1].min() - MARKER_RADIUS)
-                          & (z <= self.markers[:, 1].max() + MARKER_RADIUS))[0]
+        near = np.nonzero((z >= (self.markers[:, 1] - self.markers[:, 2]).min())
+                          & (z <= (self.markers[:, 1] + self.markers[:, 2]).max()))[0]
         if len(near) == 0:
             return out
         rel, z = P[near] - o, z[near]
         phi = np.arctan2(rel @ y4, rel @ x4)
         r = np.hypot(rel @ x4, rel @ y4)
         m = np.zeros(len(near), bool)
-        for pk, zk in self.markers:
+        for pk, zk, rk in self.markers:
             d = (phi - pk + np.pi) % (2 * np.pi) - np.pi
-            m |= (r * d) ** 2 + (z - zk) ** 2 <= MARKER_RADIUS ** 2
+            m |= (r * d) ** 2 + (z - zk) ** 2 <= rk ** 2
         out[near] = m
         return out
 

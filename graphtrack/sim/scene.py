@@ -70,8 +70,9 @@ class Scene:
     def setup_renderer(self, robot, antialias: bool = True) -> None:
         self.renderer = ToolRenderer(self.camera, self.materials, self.light, self.falloff,
                                      self.distance, self.vig, antialias)
-        mk = [p.position for p in robot.point_features if p.link == 4]
-        self.renderer.markers = np.array([[np.arctan2(p[1], p[0]), p[2]] for p in mk]).reshape(-1, 2)
+        mk = [p for p in robot.point_features if p.link == 4 and p.radius > 0]
+        self.renderer.markers = np.array([[np.arctan2(p.position[1], p.position[0]), p.position[2], p.radius]
+                                          for p in mk]).reshape(-1, 3)
 
     def plan_occlusions(self, rng, L_true: np.ndarray) -> None:
         """Tissue flaps over the shaft: [(start, end, centre uv, radius, polygon offsets)].

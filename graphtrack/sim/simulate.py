@@ -191,11 +191,15 @@ def cache_dir() -> Path:
     return (Path(root) if root else Path.home() / ".cache" / "graphtrack") / "sim"
 
 
+#: bumped when a cached recording's content changes (2: robot.json carries the markers' disc radius)
+CACHE_VERSION = 2
+
+
 def cached_recording(scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
                      progress: bool = True) -> Path:
     """A simulated recording in the cache, simulated on first use (``.complete`` marks it done)."""
     H, W = check_args(scene, frames, size)
-    final = cache_dir() / f"{scene}-{int(frames)}-{int(seed)}-{H}x{W}"
+    final = cache_dir() / f"{scene}-{int(frames)}-{int(seed)}-{H}x{W}-v{CACHE_VERSION}"
     if (final / ".complete").is_file():
         return final
     tmp = final.with_name(final.name + f".tmp-{os.getpid()}")
