@@ -68,6 +68,11 @@ def associate(predicted: np.ndarray, detected: np.ndarray, gate: float = 20.0,
     return a
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    """[v]x, so that P @ [v]x is the row-wise cross product P x v."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 class MarkerError(PoseErrorFunction):
     """The residual of the module doc. ``discs`` = (samples (M, S, 3), normals
     (M, S, 3)), base frame, or None (point markers); a marker whose normals are
@@ -94,59 +99,67 @@ class MarkerError(PoseErrorFunction):
         return 2 * len(self.u)
 
     def predict(self, E: np.ndarray, jacobian: bool = False):
-        """Predicted pixels c (M, 2), usable (M,), and d c / d xi (M, 2, 6) when asked."""
+        """Predicted pixels c (M, 2), usable (M,), and d c / d xi (M, 2, 6) when asked.
+
+        The samples of all markers are one flat (M S, 3) array (one numpy call
+        per step: this runs at every linearisation of every frame)."""
         R, t = E[:3, :3], E[:3, 3]
-        P = self.samples                                         # (M, S, 3)
+        M, S = self.samples.shape[:2]
+        P = self.samples.reshape(-1, 3)
         X = P @ R.T + t
-        Z = X[..., 2]
+        Z = X[:, 2]
         front = Z > 1e-6
-        Zs = np.where(front, Z, 1.0)
+        iz = 1.0 / np.where(front, Z, 1.0)
+        x, y = X[:, 0] * iz, X[:, 1] * iz
         fx, fy = self.K[0, 0], self.K[1, 1]
-        u = np.stack([fx * X[..., 0] / Zs + self.K[0, 2], fy * X[..., 1] / Zs + self.K[1, 2]], -1)
-        w = np.ones(Z.shape)
-        g = None
-        if self.normals is not None and self.disc.any():
-            n = self.normals
-            g = -((n @ R.T) * X).sum(-1)
-            w = np.where(self.disc[:, None], np.where(front & (g > 0), g / Zs ** 3, 0.0), 1.0)
-        W = w.sum(-1)
-        usable = np.all(front, axis=1)
-        hidden = usable & (W <= 0)
-        if hidden.any():         # a hidden disc: its centre, as a point marker (see the module doc)
-            w = np.where(hidden[:, None], 0.0, w)
-            w[hidden, 0] = 1.0
-            P = P.copy()
-            P[hidden, 0] = self.P[hidden]
-            u = u.copy()
-            Xc = self.P[hidden] @ R.T + t
-            u[hidden, 0] = np.stack([fx * Xc[:, 0] / Xc[:, 2] + self.K[0, 2],
-                                     fy * Xc[:, 1] / Xc[:, 2] + self.K[1, 2]], -1)
-            X, Zs = X.copy(), Zs.copy()
-            X[hidden, 0], Zs[hidden, 0] = Xc, Xc[:, 2]
-            if g is not None:
-                g = np.where(hidden[:, None], 0.0, g)
-            W = w.sum(-1)
-        Wd = np.where(W > 0, W, 1.0)
-        c = (w[..., None] * u).sum(-2) / Wd[:, None]
+        u = np.stack([fx * x + self.K[0, 2], fy * y + self.K[1, 2]], -1)
+        usable = front.reshape(M, S).all(1)
+        if self.normals is None or not self.disc.any():
+            c = u.reshape(M, S, 2).mean(1)
+            w = g = None
+            W = np.full(M, float(S))
+        else:
+            n = self.normals.reshape(-1, 3)
+            g = -np.einsum("ij,ij->i", n @ R.T, X)
+            live = np.repeat(self.disc, S) & front & (g > 0)
+            w = np.where(live, g * iz ** 3, 0.0)
+            w[~np.repeat(self.disc, S)] = 1.0
+            W = w.reshape(M, S).sum(1)
+            hidden = usable & (W <= 0)
+            if hidden.any():     # a hidden disc: its centre, as a point marker (see the module doc)
+                rows = np.flatnonzero(np.repeat(hidden, S)).reshape(-1, S)[:, 0]
+                P, X, u, iz, x, y = P.copy(), X.copy(), u.copy(), iz.copy(), x.copy(), y.copy()
+                P[rows] = self.P[hidden]
+                X[rows] = self.P[hidden] @ R.T + t
+                iz[rows] = 1.0 / X[rows, 2]
+                x[rows], y[rows] = X[rows, 0] * iz[rows], X[rows, 1] * iz[rows]
+                u[rows] = np.stack([fx * x[rows] + self.K[0, 2], fy * y[rows] + self.K[1, 2]], -1)
+                w[rows] = 1.0
+                live[rows] = False
+                W = w.reshape(M, S).sum(1)
+            Wd = np.where(W > 0, W, 1.0)
+            c = (w[:, None] * u).reshape(M, S, 2).sum(1) / Wd[:, None]
         if not jacobian:
             return c, usable, None
-        A = np.zeros(X.shape[:-1] + (2, 3))
-        A[..., 0, 0] = fx / Zs
-        A[..., 0, 2] = -fx * X[..., 0] / Zs ** 2
-        A[..., 1, 1] = fy / Zs
-        A[..., 1, 2] = -fy * X[..., 1] / Zs ** 2
-        AR = A @ R                                               # (M, S, 2, 3)
-        du = np.concatenate([np.cross(P[..., None, :], AR), AR], -1)  # (M, S, 2, 6)
-        dc = (w[..., None, None] * du).sum(1)
-        if g is not None:
-            n = self.normals
-            ct = R.T @ t
-            dg = np.concatenate([np.cross(ct, n), -n], -1)        # (M, S, 6)
-            dZ = np.concatenate([np.cross(P, R[2]), np.broadcast_to(R[2], P.shape)], -1)
-            live = (self.disc[:, None] & front & (g > 0))[..., None]
-            dw = np.where(live, dg / Zs[..., None] ** 3 - 3.0 * (g / Zs ** 4)[..., None] * dZ, 0.0)
-            dc = dc + np.einsum("msr,msk->mrk", u - c[:, None, :], dw)
-        return c, usable, dc / Wd[:, None, None]
+        # P x v = P @ [v]x for the rows of R (cheaper than np.cross on every call)
+        PxR = [P @ _skew(R[r]) for r in range(3)]
+        sx, sy = fx * iz, fy * iz
+        a0 = sx[:, None] * (R[0] - x[:, None] * R[2])            # d u_x / d(R p) . R
+        a1 = sy[:, None] * (R[1] - y[:, None] * R[2])
+        du = np.empty((len(P), 2, 6))
+        du[:, 0, :3] = sx[:, None] * (PxR[0] - x[:, None] * PxR[2])
+        du[:, 1, :3] = sy[:, None] * (PxR[1] - y[:, None] * PxR[2])
+        du[:, 0, 3:], du[:, 1, 3:] = a0, a1
+        if w is None:
+            return c, usable, du.reshape(M, S, 2, 6).mean(1)
+        dc = (w[:, None, None] * du).reshape(M, S, 2, 6).sum(1)
+        if live.any():
+            dg = np.concatenate([-(n @ _skew(R.T @ t)), -n], 1)          # (R^T t) x n, -n
+            dZ = np.concatenate([PxR[2], np.broadcast_to(R[2], P.shape)], 1)
+            dw = np.where(live[:, None], dg * (iz ** 3)[:, None] - (3.0 * g * iz ** 4)[:, None] * dZ, 0.0)
+            r = u - np.repeat(c, S, axis=0)
+            dc += (r[:, :, None] * dw[:, None, :]).reshape(M, S, 2, 6).sum(1)
+        return c, usable, dc / np.where(W > 0, W, 1.0)[:, None, None]
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True):
         N = len(self.u)

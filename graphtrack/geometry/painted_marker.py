@@ -35,16 +35,26 @@ other parts of the tool is not modelled.
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
+
+
+@lru_cache(maxsize=8)
+def _unit_pattern(n: int) -> tuple[np.ndarray, np.ndarray]:
+    g = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    s, h = np.meshgrid(g, g)
+    inside = s ** 2 + h ** 2 <= 1.0
+    s, h = s[inside], h[inside]
+    s.flags.writeable = h.flags.writeable = False
+    return s, h
 
 
 def disc_pattern(radius: float, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
     """Surface offsets (s, h) (S,) each, m, of a disc of ``radius`` m: the centres of
     the n x n grid cells over its bounding square that lie inside it (equal areas)."""
-    g = ((np.arange(n) + 0.5) / n * 2.0 - 1.0) * float(radius)
-    s, h = np.meshgrid(g, g)
-    inside = s ** 2 + h ** 2 <= float(radius) ** 2
-    return s[inside], h[inside]
+    s, h = _unit_pattern(int(n))
+    return s * float(radius), h * float(radius)
 
 
 def on_surface(points: np.ndarray, p0: np.ndarray, d: np.ndarray, r: float,
@@ -57,22 +67,25 @@ def on_surface(points: np.ndarray, p0: np.ndarray, d: np.ndarray, r: float,
 
 
 def painted_disc(points: np.ndarray, p0: np.ndarray, d: np.ndarray, r: float,
-                 radius: float, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
+                 radius, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
     """Surface samples X (M, S, 3) and outward normals N (M, S, 3) of discs of
-    ``radius`` m painted around the surface points (M, 3) of the cylinder
-    (axis point p0, unit direction d, radius r), all in one frame (see the
-    module doc)."""
+    ``radius`` m (a number or one per point) painted around the surface points
+    (M, 3) of the cylinder (axis point p0, unit direction d, radius r), all in
+    one frame (see the module doc)."""
     P = np.asarray(points, float).reshape(-1, 3)
     p0, d = np.asarray(p0, float), np.asarray(d, float)
-    s, h = disc_pattern(radius, n)
+    su, hu = _unit_pattern(int(n))
+    rad = np.broadcast_to(np.asarray(radius, float), (len(P),))[:, None]
+    s, h = rad * su, rad * hu                                   # (M, S)
     v = P - p0
     ax = v @ d
     nk = v - ax[:, None] * d
     nk /= np.linalg.norm(nk, axis=1, keepdims=True)
-    tk = np.cross(d, nk)
+    tk = np.stack([d[1] * nk[:, 2] - d[2] * nk[:, 1], d[2] * nk[:, 0] - d[0] * nk[:, 2],
+                   d[0] * nk[:, 1] - d[1] * nk[:, 0]], -1)         # d x n_k
     a = s / r
-    N = np.cos(a)[None, :, None] * nk[:, None, :] + np.sin(a)[None, :, None] * tk[:, None, :]
-    X = p0 + (ax[:, None] + h[None, :])[..., None] * d + r * N
+    N = np.cos(a)[..., None] * nk[:, None, :] + np.sin(a)[..., None] * tk[:, None, :]
+    X = p0 + (ax[:, None] + h)[..., None] * d + r * N
     return X, N
 
 

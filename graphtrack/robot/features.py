@@ -138,11 +138,13 @@ def marker_discs(robot: RobotDescription, features: Features, n: int = 9):
     N = np.zeros_like(X)
     links = np.array([p.link for p in robot.point_features])
     todo = radii > 0
+    found = False
     for s, sf in enumerate(robot.shaft_features):
         p0, d, r = features.shaft_p0[s], features.shaft_d[s], float(features.shaft_r[s])
         sel = todo & (links == sf.link)
         sel[sel] = on_surface(P[sel], p0, d, r)
-        for k in np.flatnonzero(sel):
-            X[k], N[k] = (a[0] for a in painted_disc(P[k], p0, d, r, radii[k], n))
+        if sel.any():
+            X[sel], N[sel] = painted_disc(P[sel], p0, d, r, radii[sel], n)
+            found = True
         todo &= ~sel
-    return (X, N) if np.any(N != 0) else None
+    return (X, N) if found else None
