@@ -169,3 +169,18 @@ def test_monotone_stamps():
     assert monotone_stamp(float("nan"), 1.0, 30.0) == pytest.approx(1.0 + 1 / 30)
     assert monotone_stamp(0.5, 1.0, 30.0) == pytest.approx(1.0 + 1e-6)
     assert monotone_stamp(2.0, 1.0, 30.0) == 2.0
+
+
+def test_settled_frames_relinearise_coarser():
+    """After ``settle`` s from the start-up frame new states are keyed y_t, which
+    iSAM2's threshold map relinearises at the settled threshold; tracking goes on
+    across the switch (the chain links x_t to y_t+1)."""
+    import gtsam
+
+    robot, cam, E0, frames = sequence(45, seed=4, scene=SCENE, pixel_noise=1.0, marker_noise=1.0)
+    est = make_estimator("smoother", TrackingContext(robot, cam, E0), settle=0.5, **MATCHED)
+    for f in frames:
+        e = est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]),
+                     Observation("line-intensities", pixels=f.pixels, markers=f.markers))
+    assert est.settled and chr(gtsam.Symbol(est.prev_key).chr()) == "y"
+    assert within(left_error(frames[-1].E_true, e.E), 1.0, 0.5)

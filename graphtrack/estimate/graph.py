@@ -221,7 +221,7 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
 
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
                         opts: FactorOptions, model: str | None = None,
-                        E_ref: np.ndarray | None = None) -> tuple[list, list]:
+                        E_ref: np.ndarray | None = None, pose_key: int | None = None) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
@@ -241,7 +241,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
         return out, []
     F = base_features(robot, np.asarray(q, float))
     kern = opts.kernel
-    x = key(k)
+    x = key(k) if pose_key is None else pose_key
     b = bias_key(k // opts.edge_bias_period) if opts.uses_edge_bias(model) else None
     model = observation.model or model
     if has_shaft and len(F.shaft_r):

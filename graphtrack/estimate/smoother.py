@@ -1,6 +1,6 @@
 """Online fixed-lag factor-graph estimator of the lumped error E_t.
 
-One gtsam.Pose3 E_t per frame (key x_t). Factors:
+One gtsam.Pose3 E_t per frame (key x_t; y_t once settled, see below). Factors:
 
 - frame 0: PriorFactorPose3(E_0 = ctx.handeye) with left (b, w) stds
   (prior_sigma_b m, prior_sigma_w rad);
@@ -59,6 +59,18 @@ relinearize_threshold 1e-2 and one extra iSAM2 pass per frame run at 67
 frames/s end to end against 53 with 1e-3 and two passes (the slow frames were
 the relinearisations), with the same tip error (11.9 vs 11.8 px there, and
 unchanged on four tuning recordings).
+
+Settled relinearisation. Once ``settle`` seconds (default 2) have passed since
+the start-up frame, new frames are keyed y_t instead of x_t, and iSAM2's
+threshold map relinearises them at ``settled_relinearize_threshold`` (2e-2,
+rad / m of gtsam's right perturbation) instead of 1e-2. While tracking, the
+window's past states keep moving by ~0.6 deg as new frames arrive (more so
+with the painted-disc markers holding the slide along the shaft), and at 1e-2
+every such move relinearised all the window's Python pixel factors, a 30-70 ms
+update every few frames (1080x1920 canny recording: 35 frames/s, with 2e-2
+after 2 s: 44, tip error 4.25 / 4.23 px). 2e-2 from the first frame broke the
+start-up from large hand-eye errors (a synthetic start-up 12 mm off diverged
+to 20 mm), whose first seconds move the estimate by degrees.
 """
 from __future__ import annotations
 
@@ -83,7 +95,8 @@ class FixedLagSmootherEstimator:
     back before starting without the shaft),
     motion_sigma_b/_w (per frame), iterations (extra iSAM2 passes per frame
     while the newest state still moves more than ``converge_tol``),
-    relinearize_threshold, fps (stamps fallback), covariance (compute the
+    relinearize_threshold, settled_relinearize_threshold and settle (s; see
+    the module doc), fps (stamps fallback), covariance (compute the
     marginal each frame), plus :class:`graphtrack.estimate.graph.FactorOptions`
     (pixel_sigma, line_sigma_rho, line_sigma_theta, marker_sigma, marker_gate,
     robust, robust_k, max_pixels).
@@ -98,7 +111,8 @@ class FixedLagSmootherEstimator:
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
                  motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
                  iterations: int = 1, converge_tol: float = 1e-4,
-                 relinearize_threshold: float = 1e-2, fps: float = 30.0,
+                 relinearize_threshold: float = 1e-2, settled_relinearize_threshold: float = 2e-2,
+                 settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
                  start_up_wait: int = 30, **options):
         import gtsam
@@ -125,21 +139,24 @@ class FixedLagSmootherEstimator:
         if self.kind == "isam2":
             p = gtsam.ISAM2Params()
             p.relinearizeSkip = 1
+            th = gtsam.ISAM2ThresholdMap()       # per key letter: x (start-up), y (settled), b
+            th.insert(("x", np.full(6, float(relinearize_threshold))))
+            th.insert(("y", np.full(6, float(settled_relinearize_threshold))))
             if self.bias:
                 # b enters the residuals linearly (only the robust weights depend on it,
                 # and they stay at b's linearisation point): relinearising for its moves
                 # (px) re-evaluated every pixel factor of the window each frame (10x slower)
-                th = gtsam.ISAM2ThresholdMap()
-                th.insert(("x", np.full(6, float(relinearize_threshold))))
                 th.insert(("b", np.full(BIAS_DIM, 1e3)))
-                p.setRelinearizeThreshold(th)
-            else:
-                p.setRelinearizeThreshold(float(relinearize_threshold))
+            p.setRelinearizeThreshold(th)
             self.smoother = gtsam.IncrementalFixedLagSmoother(self.lag, p)
         else:
             lm = gtsam.LevenbergMarquardtParams()
             self.smoother = gtsam.BatchFixedLagSmoother(self.lag, lm)
         self.k = -1
+        self.settle = float(settle)
+        self.start_stamp = None       # stamp of the start-up frame
+        self.settled = False          # frames from here on are keyed 'y' (see the module doc)
+        self.prev_key = None
         self.started = not start_up
         self.start_up_iterations = int(start_up_iterations)
         self.start_up_wait = int(start_up_wait)
@@ -166,13 +183,12 @@ class FixedLagSmootherEstimator:
             return None
         return left_from_right_cov(pose.matrix(), np.asarray(C))
 
-    def _start_up(self, k: int, shaft: list, markers: list):
+    def _start_up(self, k: int, shaft: list, markers: list, x: int):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
         that frame's factors + a prior at the current estimate (the hand-eye prior's
         spread). iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
         error of several mm / deg overshoot into a wrong data association."""
         gtsam = self.gtsam
-        x = key(k)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.start_up_iterations)
         # damping scaled by the Hessian's diagonal: far from the data every pixel sits
@@ -204,11 +220,15 @@ class FixedLagSmootherEstimator:
         t_start = time.perf_counter()
         self.k += 1
         k = self.k
-        x = key(k)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         stamp = self._stamp(frame)
+        if self.start_stamp is None and self.started:
+            self.start_stamp = stamp
+        if not self.settled and self.start_stamp is not None and stamp - self.start_stamp >= self.settle:
+            self.settled = True
+        x = gtsam.symbol("y", k) if self.settled else key(k)
         if self.bias:
             every = self.fopts.edge_bias_period
             j = k // every
@@ -227,15 +247,16 @@ class FixedLagSmootherEstimator:
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
-            graph.add(gtsam.BetweenFactorPose3(key(k - 1), x, gtsam.Pose3(), self.motion_noise))
+            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
+        self.prev_key = x
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self.fopts, self.model, self.E0)
+                                             self.fopts, self.model, self.E0, pose_key=x)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen
                 self.waited += 1
             if shaft or markers:
-                self.last = self._start_up(k, shaft, markers)
+                self.last = self._start_up(k, shaft, markers, x)
                 self.started = True
         for f in shaft + markers:
             graph.add(f)
