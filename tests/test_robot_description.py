@@ -44,6 +44,7 @@ def test_marker_radius_is_optional(tmp_path):
     (lambda d: d["shaft_features"][0].update(position=[0, 0]), "shaft_features[0]: position"),
     (lambda d: d["point_features"][1].update(radius=-0.001), "point_features[1]: radius"),
     (lambda d: d["point_features"][1].update(radius="big"), "point_features[1]: radius"),
+    (lambda d: d["point_features"][1].update(radius=0.5), "point_features[1]: radius"),
     (lambda d: d["tool_tip"].pop("link"), "tool_tip: link"),
     (lambda d: d.update(has_gripper="yes"), "has_gripper"),
 ])

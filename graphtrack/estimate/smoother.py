@@ -224,7 +224,7 @@ class FixedLagSmootherEstimator:
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         stamp = self._stamp(frame)
-        if self.start_stamp is None and self.started:
+        if self.start_stamp is None and self.started:   # start_up=False: from the first frame
             self.start_stamp = stamp
         if not self.settled and self.start_stamp is not None and stamp - self.start_stamp >= self.settle:
             self.settled = True
@@ -258,6 +258,7 @@ class FixedLagSmootherEstimator:
             if shaft or markers:
                 self.last = self._start_up(k, shaft, markers, x)
                 self.started = True
+                self.start_stamp = stamp
         for f in shaft + markers:
             graph.add(f)
         values.insert(x, self.last)

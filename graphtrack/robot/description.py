@@ -214,8 +214,8 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
         p = PointFeature(str(o.get("name", f"point_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"),
                          d.get(o, "radius", default=0.0, required=False))
         _check_link(d, p.link, n_links, "link")
-        if p.radius < 0:
-            d.fail("radius", "must be >= 0 (metres; 0: a point)")
+        if not 0 <= p.radius <= 0.01:
+            d.fail("radius", "must be in [0, 0.01] (metres: a painted marker's disc; 0: a point)")
         points.append(p)
     shafts = []
     for i, o in enumerate(doc.get("shaft_features", []) or []):
