@@ -223,10 +223,10 @@ class FixedLagSmootherEstimator:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-        stamp = self._stamp(frame)
+        t = self._stamp(frame)
         if self.start_stamp is None and self.started:   # start_up=False: from the first frame
-            self.start_stamp = stamp
-        if not self.settled and self.start_stamp is not None and stamp - self.start_stamp >= self.settle:
+            self.start_stamp = t
+        if not self.settled and self.start_stamp is not None and t - self.start_stamp >= self.settle:
             self.settled = True
         x = gtsam.symbol("y", k) if self.settled else key(k)
         if self.bias:
@@ -234,16 +234,18 @@ class FixedLagSmootherEstimator:
             j = k // every
             if k % every == 0:        # open vector j, starting from phi times vector j - 1's estimate
                 b0 = np.zeros(BIAS_DIM)
-                dt = None if k == 0 else stamp - self.bias_stamp
+                dt = None if k == 0 else t - self.bias_stamp
                 if dt is not None:
                     b0 = transition(dt, self.fopts.edge_bias_tau) * np.asarray(
                         self.smoother.calculateEstimateVector(bias_key(j - 1)), float)
                 for f in edge_bias_factors(j, dt, self.fopts):
                     graph.add(f)
                 values.insert(bias_key(j), b0)
-                stamps.insert((bias_key(j), stamp))
-                self.bias_stamp = stamp
-            stamp = self.bias_stamp   # the block's variables leave the window together
+                stamps.insert((bias_key(j), t))
+                self.bias_stamp = t
+        # the window timestamp of this frame's variables: with the edge-bias state the
+        # bias block's first frame, so that the block's variables leave together
+        stamp = self.bias_stamp if self.bias else t
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
@@ -258,7 +260,7 @@ class FixedLagSmootherEstimator:
             if shaft or markers:
                 self.last = self._start_up(k, shaft, markers, x)
                 self.started = True
-                self.start_stamp = stamp
+                self.start_stamp = t
         for f in shaft + markers:
             graph.add(f)
         values.insert(x, self.last)
