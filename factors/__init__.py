@@ -12,8 +12,9 @@ convention
   edge's pixel set (pixel observation models);
 - :mod:`factors.line_parameter`: (rho, theta) of one detected shaft line
   (polar observation models), angle wrapped;
-- :mod:`factors.marker`: reprojection of the painted markers with Hungarian
-  association and a 20 px gate;
+- :mod:`factors.marker`: reprojection of the painted markers (points, or discs
+  on the shaft: the centroid of their image) with Hungarian association and a
+  gate (20 px by default);
 - :mod:`factors.robust`: the Huber / Cauchy kernels (gtsam's mEstimator
   definitions), applied per pixel / per marker inside the multi-residual factors;
 - :mod:`factors.edge_bias`: the detector's edge-bias state (lateral / width

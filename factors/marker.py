@@ -46,14 +46,6 @@ from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
 
 
-def project_markers(E: np.ndarray, points: np.ndarray, K: np.ndarray):
-    """Pixels (M, 2), camera points (M, 3) of base points (M, 3) through E."""
-    X = points @ E[:3, :3].T + E[:3, 3]
-    Z = np.where(X[:, 2] > 1e-9, X[:, 2], 1e-9)
-    u = np.stack([K[0, 0] * X[:, 0] / Z + K[0, 2], K[1, 1] * X[:, 1] / Z + K[1, 2]], -1)
-    return u, X
-
-
 def associate(predicted: np.ndarray, detected: np.ndarray, gate: float = 20.0,
               usable: np.ndarray | None = None) -> np.ndarray:
     """Hungarian association: a (N,) marker index per detection, -1 if none within ``gate`` px."""

@@ -43,7 +43,6 @@ def test_marker_gates_are_in_detection_pixels():
     """At a detection scale s the estimators' marker gates become gate / s full-size px."""
     import gtsam
 
-    from factors.marker import project_markers
     from graphtrack.detect.base import Observation
     from graphtrack.estimate import observation_models as om
     from graphtrack.estimate.graph import FactorOptions, frame_factors, key
@@ -61,7 +60,7 @@ def test_marker_gates_are_in_detection_pixels():
 
     # a marker detected 90 px from its prediction: outside a 60 px gate, inside 60 * 2
     q = np.asarray(Q0, float)
-    uv, _ = project_markers(E0, base_features(robot, q).points, cam.K)
+    uv = cam.project_undistorted(base_features(robot, q).transformed(E0).points)
     obs = Observation(model="line-intensities", markers=uv[:1] + np.array([90.0, 0.0]))
     values = gtsam.Values()
     values.insert(key(0), gtsam.Pose3(E0))
