@@ -67,3 +67,26 @@ def test_marker_gates_are_in_detection_pixels():
     for scale, associated in ((1.0, False), (2.0, True)):
         (f,) = frame_factors(0, q, obs, robot, cam.K, FactorOptions(gate_scale=scale))
         assert (f.error(values) > 0) == associated
+
+
+def test_batch_gates_its_detector_like_the_smoother():
+    """The batch's provisional rows are the online smoother's, std included, so the
+    detector it runs behind is gated exactly as the smoother's (same detections);
+    without the std every frame had the widest gate, 150 px."""
+    from factors.synthetic import sequence
+    from graphtrack.detect.base import Observation
+
+    robot, cam, E0, frames = sequence(5, seed=3)
+    ctx = TrackingContext(robot, cam, E0)
+    smoother = Pipeline(ctx, TrackOptions(estimator="smoother", detector="canny", observation="canny"))
+    batch = Pipeline(ctx, TrackOptions(estimator="batch", detector="canny", observation="canny"))
+    for f in frames:
+        frame = Frame(f.index, f.stamp, None, f.q[:6], f.q[6])
+        obs = Observation("canny", lines=f.lines, markers=f.markers)
+        a = smoother.estimator.step(frame, obs)
+        b = batch.estimator.step(frame, obs)
+        smoother.last_std, batch.last_std = a.std, b.std
+        assert b.std is not None and np.allclose(a.std, b.std) and np.allclose(a.E, b.E)
+        ga, gb = smoother.gate(frame), batch.gate(frame)
+        assert (ga is None) == (gb is None)
+        assert ga is None or ga.max_offset == pytest.approx(gb.max_offset)

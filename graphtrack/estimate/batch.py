@@ -7,7 +7,10 @@ frame's robust detection factors, and for the pixel models the edge-bias
 vectors (one per ``edge_bias_every`` frames) with their Gauss-Markov chain
 (:mod:`factors.edge_bias`). ``step`` only records the frame's readings
 and observation and returns a provisional estimate (the previous one: E_0 at
-first, or the online smoother's when ``provisional="smoother"``); ``finish``
+first, or the online smoother's when ``provisional="smoother"``, the default,
+with its std: the tracking pipeline gates the detector with the provisional
+estimate's std, so the batch refines exactly the detections the online
+smoother saw; without the std every frame had the widest gate); ``finish``
 runs Levenberg-Marquardt over all frames (:mod:`graphtrack.estimate.lm`,
 gtsam's iteration driven from Python so that the factor callbacks see the
 Values without pybind11 copying it into each one), initialised from the
@@ -81,7 +84,7 @@ class BatchEstimator:
             self.online = FixedLagSmootherEstimator(ctx, observation=observation, markers=markers,
                                                     prior_sigma_b=prior_sigma_b, prior_sigma_w=prior_sigma_w,
                                                     motion_sigma_b=motion_sigma_b,
-                                                    motion_sigma_w=motion_sigma_w, covariance=False,
+                                                    motion_sigma_w=motion_sigma_w, covariance=True,
                                                     fps=fps, **options)
         self.stats: dict[str, float] = {}
 
@@ -89,9 +92,10 @@ class BatchEstimator:
         self.frames.append((np.asarray(frame.q, float).copy(), observation))
         self.stamps.append(monotone_stamp(frame.stamp, self.stamps[-1] if self.stamps else None, self.fps))
         if self.online is not None:
-            E = self.online.step(frame, observation).E
-        else:
-            E = self.initial[-1] if self.initial else self.E0
+            provisional = self.online.step(frame, observation)
+            self.initial.append(np.asarray(provisional.E, float))
+            return provisional   # with its std, which the tracking pipeline's detector gate reads
+        E = self.initial[-1] if self.initial else self.E0
         self.initial.append(np.asarray(E, float))
         return Estimate(np.asarray(E, float).copy())
 
