@@ -22,11 +22,32 @@ different limbs, the pairing with the smaller total whitened cost. Analytic Jaco
 (sigma_rho px, sigma_theta rad) and the robust kernel are a
 ``gtsam.noiseModel.Robust`` (2 residuals: per-line robustness is exactly what
 GTSAM's robust model gives). Degenerate view: zero residual, zero Jacobian.
+
+With the detector's edge-bias vector b = (l, l_s, w, w_s) px (:mod:`factors.edge_bias`;
+the factor is then on (E, b)), limb i is compared after moving it the way the
+pixel models move their edge sets: by the offset o_i = w + sgn_i l (into the
+shaft's image) at x0, the foot of the principal point on the detected line,
+and turned by the slope k_i = (w_s + sgn_i l_s) / T per px along u, the
+detected line's direction oriented like the shaft's reference direction
+(T = ``SLOPE_SCALE``). With n = (A, B)/s and c = C/s the limb's signed-distance
+line, the biased line is
+
+    L' = (n - k_i u, c - o_i + k_i u.x0)
+
+(a pixel x is on it when n.x + c = o_i + k_i u.(x - x0)), and theta, rho are
+taken of L' as above. Its Jacobians follow by the chain rule:
+dn/d(A, B) = (I - n n^T)/s, dc/d(A, B, C) = (-C A/s^3, -C B/s^3, 1/s),
+dL'/do_i = (0, 0, -1), dL'/dk_i = (-u, u.x0). A RANSAC line fitted near the
+shaft's end, where the end face's corner pulls it inwards, is off its limb
+by a few px and tenths of a degree for seconds at a time (benchmarks/RESULTS.md);
+counted as independent per frame, that error is averaged over the recording as
+if it were information (see FactorOptions in :mod:`graphtrack.estimate.graph`).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from factors.edge_bias import BIAS_DIM, SLOPE_SCALE, limb_bias, limb_bias_jacobian
 from factors.limb import LimbPairing, ShaftAxis, line_matrix
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
@@ -34,17 +55,42 @@ from graphtrack.geometry.lines import line_difference
 
 
 class LineParameterError(PoseErrorFunction):
+    """The residual of the module doc; ``bias``: the factor is on (E, b), the edge-bias
+    vector; ``direction``: the frame's reference direction of the shaft (2,) that
+    orients u (:func:`factors.edge_bias.reference_direction`; None: +y)."""
+
     def __init__(self, line: np.ndarray, axis: ShaftAxis, K: np.ndarray,
-                 sigma_rho: float = 3.0, sigma_theta: float = 0.01, pairing: LimbPairing | None = None):
+                 sigma_rho: float = 3.0, sigma_theta: float = 0.01, pairing: LimbPairing | None = None,
+                 bias: bool = False, direction: np.ndarray | None = None):
         self.rho_d, self.theta_d = (float(v) for v in np.asarray(line, float).ravel()[:2])
         self.axis = axis
         self.M = line_matrix(np.asarray(K, float))
         self.sig = np.array([sigma_rho, sigma_theta], float)
         self.limb = -1
+        self.bias = bool(bias)
+        self.b = np.zeros(BIAS_DIM)     # the bias the differences are taken with
+        if self.bias:
+            n = np.array([np.cos(self.theta_d), np.sin(self.theta_d)])
+            c = np.asarray(K, float)[:2, 2]
+            x0 = c - (n @ c - self.rho_d) * n                 # foot of the principal point
+            u = np.array([-n[1], n[0]])
+            ref = np.array([1e-9, 1.0]) if direction is None else np.asarray(direction, float)
+            self.u = u if u @ ref >= 0 else -u
+            self.ux0 = float(self.u @ x0)
         self.pairing = pairing if pairing is not None else LimbPairing()  # alone: the nearer limb
         self.slot = self.pairing.add(self)
 
+    def biased(self, L: np.ndarray) -> np.ndarray:
+        """L' (2, 3) of both limbs of L (2, 3) under the bias self.b (L itself without the state)."""
+        if not self.bias:
+            return L
+        s = np.hypot(L[:, 0], L[:, 1])[:, None]
+        ok = np.array([limb_bias(self.b, i) for i in range(2)])        # (2, 2): o_i, slope_i
+        k = ok[:, 1:2] / SLOPE_SCALE
+        return np.hstack([L[:, :2] / s - k * self.u, L[:, 2:] / s - ok[:, 0:1] + k * self.ux0])
+
     def _differences(self, L: np.ndarray):
+        L = self.biased(L)
         A, B, C = L[:, 0], L[:, 1], L[:, 2]
         s = np.hypot(A, B)
         return line_difference(-C / s, np.arctan2(B, A), self.rho_d, self.theta_d)
@@ -54,35 +100,71 @@ class LineParameterError(PoseErrorFunction):
         drho, dth = self._differences(L)
         return (drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2
 
-    def evaluate(self, E: np.ndarray, jacobian: bool = True):
-        """Unwhitened residual (d_rho px, d_theta rad) and its (2, 6) Jacobian."""
+    def _set_bias(self, b: np.ndarray) -> None:
+        """Take b for this frame's lines (they share it) and re-pair them if it changed."""
+        b = np.asarray(b, float)
+        if not np.array_equal(b, self.b):
+            for m in self.pairing.members:
+                if getattr(m, "bias", False):
+                    m.b = b.copy()
+            self.pairing._key = None
+
+    def evaluate(self, E: np.ndarray, jacobian: bool = True, b: np.ndarray | None = None):
+        """Unwhitened residual (d_rho px, d_theta rad) and its Jacobian: (2, 6) d/dxi, or
+        with the bias state (b given) (2, 10) [d/dxi, d/db]."""
+        ncols = 6 if b is None else 6 + BIAS_DIM
+        if b is not None:
+            self._set_bias(b)
         L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1
-            return np.zeros(2), (np.zeros((2, 6)) if jacobian else None)
-        A, B, C = L[:, 0], L[:, 1], L[:, 2]
-        s = np.hypot(A, B)
+            return np.zeros(2), (np.zeros((2, ncols)) if jacobian else None)
         drho, dth = self._differences(L)
         i = self.pairing.limbs(E, L)[self.slot]
         self.limb = i
         r = np.array([drho[i], dth[i]])
         if not jacobian:
             return r, None
-        a, b, c, si = A[i], B[i], C[i], s[i]
-        dth_dL = np.array([-b, a, 0.0]) / si ** 2
-        drho_dL = np.array([c * a / si ** 3, c * b / si ** 3, -1.0 / si])
-        J = np.vstack([drho_dL @ dL[i], dth_dL @ dL[i]])
+        Lb = self.biased(L)[i]
+        a, bb, c = Lb
+        si = np.hypot(a, bb)
+        dr_dLb = np.array([[c * a / si ** 3, c * bb / si ** 3, -1.0 / si],
+                           [-bb / si ** 2, a / si ** 2, 0.0]])              # d(rho, theta)/dL'
+        if b is None:
+            return r, dr_dLb @ dL[i]
+        A, B, C = L[i]
+        s = np.hypot(A, B)
+        n = np.array([A, B]) / s
+        dLb_dL = np.zeros((3, 3))
+        dLb_dL[:2, :2] = (np.eye(2) - np.outer(n, n)) / s
+        dLb_dL[2] = [-C * A / s ** 3, -C * B / s ** 3, 1.0 / s]
+        dLb_dok = np.array([[0.0, -self.u[0]], [0.0, -self.u[1]], [-1.0, self.ux0]])   # d L'/d(o, k)
+        dok_db = np.diag([1.0, 1.0 / SLOPE_SCALE]) @ limb_bias_jacobian(i)
+        J = np.hstack([dr_dLb @ dLb_dL @ dL[i], dr_dLb @ dLb_dok @ dok_db])
         return r, J
 
+    def __call__(self, this, values, H):
+        if not self.bias:
+            return super().__call__(this, values, H)
+        keys = this.keys()
+        r, J = self.evaluate(values.atPose3(keys[0]).matrix(), H is not None, values.atVector(keys[1]))
+        if H is not None:
+            H[0] = J[:, :6]
+            H[1] = J[:, 6:]
+        return r
 
 
 def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,
                           sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy",
-                          pairing: LimbPairing | None = None):
+                          pairing: LimbPairing | None = None, bias_key: int | None = None,
+                          direction: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta);
-    ``pairing``: the frame's :class:`factors.limb.LimbPairing` (None: nearer limb)."""
+    ``pairing``: the frame's :class:`factors.limb.LimbPairing` (None: nearer limb);
+    with ``bias_key`` (the frame's edge-bias vector) on (key, bias_key), ``direction``
+    the frame's reference direction of the shaft."""
     import gtsam
 
-    fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta, pairing)
+    fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta, pairing, bias_key is not None, direction)
     noise = make_kernel(kernel).gtsam_noise(gtsam.noiseModel.Diagonal.Sigmas(fn.sig))
-    return gtsam.CustomFactor(noise, [key], fn)
+    keys = [key] if bias_key is None else [key, bias_key]
+    return gtsam.CustomFactor(noise, keys, fn)

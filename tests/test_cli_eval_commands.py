@@ -77,8 +77,8 @@ def test_refine_is_track_with_batch(rec, tmp_path):
 
 @pytest.mark.parametrize("command,estimator", [("track", "smoother"), ("refine", "batch")])
 def test_no_edge_bias_reaches_the_estimator(rec, tmp_path, command, estimator):
-    """--no-edge-bias turns the edge-bias state off in the smoother and the batch
-    (pixel models); by default it is on, and the polar models never have it."""
+    """--no-edge-bias turns the edge-bias state off in the smoother and the batch;
+    by default it is on, for the pixel models and the polar models alike."""
     from graphtrack.cli import build_parser
     from graphtrack.commands.track import options_from_args
     from graphtrack.estimate.context import TrackingContext
@@ -89,7 +89,8 @@ def test_no_edge_bias_reaches_the_estimator(rec, tmp_path, command, estimator):
     r = open_recording(rec)
     ctx = TrackingContext(r.robot, r.calibration.left, r.handeye)
     for extra, observation, on in (([], "line-intensities", True), (["--no-edge-bias"], "line-intensities", False),
-                                   ([], "line-intensities-polar", False)):
+                                   ([], "line-intensities-polar", True),
+                                   (["--no-edge-bias"], "line-intensities-polar", False)):
         opts = options_from_args(build_parser().parse_args(base + extra + ["--observation", observation]))
         est = make_estimator(estimator, ctx, observation=observation, **opts.estimator_options)
         assert est.bias is on, (extra, observation)

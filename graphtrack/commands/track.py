@@ -27,7 +27,7 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="k
     p.add_argument("--smoother", choices=("isam2", "batch"), default="isam2",
                    help="smoother: gtsam IncrementalFixedLagSmoother or BatchFixedLagSmoother")
     p.add_argument("--no-edge-bias", action="store_true",
-                   help="smoother/batch, pixel models: no edge-bias state (for edges known to be unbiased)")
+                   help="smoother/batch: no edge-bias state (for edges or lines known to be unbiased)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--alpha", type=float, default=10.0, help="pixel-set radius alpha (px)")
     p.add_argument("--beta", type=float, default=0.9, help="pixel-set heatmap threshold beta")

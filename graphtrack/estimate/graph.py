@@ -189,8 +189,9 @@ class FactorOptions:
         return make_kernel(self.robust, self.robust_k)
 
     def uses_edge_bias(self, model: str | None) -> bool:
-        """Whether frames carry the edge-bias state: ``edge_bias`` and a pixel model."""
-        return bool(self.edge_bias) and model not in POLAR_MODELS
+        """Whether frames carry the edge-bias state (``edge_bias``; every observation
+        model: the pixel sets and the polar models' detected lines)."""
+        return bool(self.edge_bias)
 
     @property
     def edge_bias_period(self) -> int:
@@ -221,7 +222,8 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
 
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
                         opts: FactorOptions, model: str | None = None,
-                        E_ref: np.ndarray | None = None, pose_key: int | None = None) -> tuple[list, list]:
+                        E_ref: np.ndarray | None = None, pose_key: int | None = None,
+                        line_bias: bool = True) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
@@ -231,6 +233,9 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     kinematics of this frame's readings q (fixed data). ``E_ref`` (the
     estimator's hand-eye prior E_0) orients the edge-bias slope terms
     (:func:`factors.edge_bias.reference_direction`), the same way in every frame.
+    ``line_bias``: with the edge-bias state, whether the detected lines of the polar
+    models are on it (the smoother holds them off it until its start-up has
+    settled, :mod:`graphtrack.estimate.smoother`); the pixel sets always are.
     """
     if observation is None:
         return [], []
@@ -250,9 +255,13 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
             lines = np.asarray(observation.lines, float).reshape(-1, 2)
             lines = lines[np.all(np.isfinite(lines), axis=1)]
             pairing = LimbPairing() if len(lines) > 1 else None
+            lb = b if line_bias else None
+            direction = None
+            if lb is not None and E_ref is not None:
+                direction = reference_direction(np.asarray(E_ref, float), F.shaft_p0[0], F.shaft_d[0], K)
             for line in lines:
                 out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
-                                                 opts.line_sigma_theta, kern, pairing))
+                                                 opts.line_sigma_theta, kern, pairing, lb, direction))
         else:
             sets = [np.asarray(px, float).reshape(-1, 2) for px in observation.pixels]
             sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]

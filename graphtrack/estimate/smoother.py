@@ -252,7 +252,8 @@ class FixedLagSmootherEstimator:
             graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
         self.prev_key = x
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self.fopts, self.model, self.E0, pose_key=x)
+                                             self.fopts, self.model, self.E0, pose_key=x,
+                                             line_bias=self.settled)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen
