@@ -49,12 +49,12 @@ import numpy as np
 
 from factors.edge_bias import BIAS_DIM, SLOPE_SCALE, limb_bias, limb_bias_jacobian
 from factors.limb import LimbPairing, ShaftAxis, line_matrix
-from factors.error_function import PoseErrorFunction
+from factors.error_function import PoseBiasErrorFunction
 from factors.robust import RobustKernel, make_kernel
 from graphtrack.geometry.lines import line_difference
 
 
-class LineParameterError(PoseErrorFunction):
+class LineParameterError(PoseBiasErrorFunction):
     """The residual of the module doc; ``bias``: the factor is on (E, b), the edge-bias
     vector; ``direction``: the frame's reference direction of the shaft (2,) that
     orients u (:func:`factors.edge_bias.reference_direction`; None: +y)."""
@@ -143,15 +143,9 @@ class LineParameterError(PoseErrorFunction):
         J = np.hstack([dr_dLb @ dLb_dL @ dL[i], dr_dLb @ dLb_dok @ dok_db])
         return r, J
 
-    def __call__(self, this, values, H):
-        if not self.bias:
-            return super().__call__(this, values, H)
-        keys = this.keys()
-        r, J = self.evaluate(values.atPose3(keys[0]).matrix(), H is not None, values.atVector(keys[1]))
-        if H is not None:
-            H[0] = J[:, :6]
-            H[1] = J[:, 6:]
-        return r
+    @property
+    def on_bias(self) -> bool:
+        return self.bias
 
 
 def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,

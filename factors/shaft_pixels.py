@@ -55,12 +55,12 @@ from __future__ import annotations
 import numpy as np
 
 from factors.edge_bias import BIAS_DIM, bias_coefficients, limb_bias, limb_bias_jacobian
-from factors.error_function import PoseErrorFunction
+from factors.error_function import PoseBiasErrorFunction
 from factors.limb import LimbPairing, ShaftAxis, line_matrix
 from factors.robust import RobustKernel, make_kernel
 
 
-class ShaftPixelsError(PoseErrorFunction):
+class ShaftPixelsError(PoseBiasErrorFunction):
     """Typed error function of one edge's pixel set (call it like GTSAM does)."""
 
     def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
@@ -125,15 +125,9 @@ class ShaftPixelsError(PoseErrorFunction):
         e, J = self.kernel.apply_scalar(zi, J)
         return (e, J) if self.sqrt_w == 1.0 else (self.sqrt_w * e, self.sqrt_w * J)
 
-    def __call__(self, this, values, H):
-        if self.C is None:
-            return super().__call__(this, values, H)
-        keys = this.keys()
-        e, J = self.evaluate(values.atPose3(keys[0]).matrix(), H is not None, values.atVector(keys[1]))
-        if H is not None:
-            H[0] = J[:, :6]
-            H[1] = J[:, 6:]
-        return e
+    @property
+    def on_bias(self) -> bool:
+        return self.C is not None
 
 
 

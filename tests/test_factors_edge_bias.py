@@ -73,6 +73,24 @@ def test_lateral_and_width_terms_by_hand(scene):
     assert np.allclose(limb_bias(b, 0), [0.6, -0.1]) and np.allclose(limb_bias(b, 1), [-0.4, -0.5])
 
 
+def _central_differences(fn, pose, b: np.ndarray, h: float = 1e-7, hb: float = 1e-5) -> np.ndarray:
+    """[de/dxi, de/db] of fn.evaluate(E, jacobian, b) by central differences:
+    Pose3.retract(+-h e_k) for E, b +- hb e_k for the bias."""
+    E = pose.matrix()
+    e = fn.evaluate(E, False, b)[0]
+    Jn = np.zeros((len(e), 6 + len(b)))
+    for k in range(6):
+        x = np.zeros(6)
+        x[k] = h
+        Jn[:, k] = (fn.evaluate(pose.retract(x).matrix(), False, b)[0]
+                    - fn.evaluate(pose.retract(-x).matrix(), False, b)[0]) / (2 * h)
+    for k in range(len(b)):
+        d = np.zeros(len(b))
+        d[k] = hb
+        Jn[:, 6 + k] = (fn.evaluate(E, False, b + d)[0] - fn.evaluate(E, False, b - d)[0]) / (2 * hb)
+    return Jn
+
+
 @pytest.mark.parametrize("kernel", ["none", "huber", "cauchy"])
 def test_biased_pixels_jacobians(scene, kernel):
     """[de/dxi, de/db] against central differences (Pose3.retract for E, b + h e_k);
@@ -88,17 +106,7 @@ def test_biased_pixels_jacobians(scene, kernel):
         for fn in fns:
             e, J = fn.evaluate(E, True, b)
             assert J.shape == (len(e), 10)
-            h = 1e-7
-            Jn = np.zeros_like(J)
-            for k in range(6):
-                x = np.zeros(6)
-                x[k] = h
-                Jn[:, k] = (fn.evaluate(pose.retract(x).matrix(), False, b)[0]
-                            - fn.evaluate(pose.retract(-x).matrix(), False, b)[0]) / (2 * h)
-            for k in range(4):
-                d = np.zeros(4)
-                d[k] = 1e-5
-                Jn[:, 6 + k] = (fn.evaluate(E, False, b + d)[0] - fn.evaluate(E, False, b - d)[0]) / 2e-5
+            Jn = _central_differences(fn, pose, b)
             tol = 2e-6 if kernel == "huber" else 1e-6
             assert np.max(np.abs(J - Jn)) <= tol * np.max(np.abs(Jn))
     e0 = fns[0].evaluate(E0, False, np.zeros(4))[0]
@@ -202,17 +210,24 @@ def test_persistent_edge_offset_no_longer_drags_the_batch():
     robot, cam, E0, frames = sequence(120, seed=2, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.0,
                                       marker_noise=1.0, pixels_per_edge=80)
     shifted = _biased_frames(robot, cam, E0, frames, offset=(1.5, -1.5), slope=(1.0, 1.0))
+    obs = [Observation("line-intensities", pixels=px, markers=f.markers) for f, px in zip(frames, shifted)]
+    errs = _batch_errors_with_and_without_bias(robot, cam, E0, frames, obs)
+    assert errs[True] < 0.6 * errs[False], errs
+
+
+def _batch_errors_with_and_without_bias(robot, cam, E0, frames, observations) -> dict:
+    """Mean translation error (m) of the batch over ``frames`` fed ``observations``,
+    without (False) and with (True) the edge-bias state."""
     errs = {}
     for on in (False, True):
-        est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities",
+        est = make_estimator("batch", TrackingContext(robot, cam, E0), observation=observations[0].model,
                              edge_bias=on, covariance=False)
-        for f, px in zip(frames, shifted):
-            est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]),
-                     Observation("line-intensities", pixels=px, markers=f.markers))
+        for f, ob in zip(frames, observations):
+            est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), ob)
         out = est.finish()
         e = np.array([left_error(f.E_true, x.E) for f, x in zip(frames, out)])
         errs[on] = np.linalg.norm(e[:, :3], axis=1).mean()
-    assert errs[True] < 0.6 * errs[False], errs
+    return errs
 
 
 @pytest.mark.parametrize("E_name", ["true", "prior"])
@@ -233,17 +248,7 @@ def test_biased_line_parameter_jacobians(scene, E_name):
     for fn, pl in zip(fns, plain):
         r, J = fn.evaluate(E, True, b)
         assert J.shape == (2, 10)
-        Jn = np.zeros_like(J)
-        h = 1e-7
-        for k in range(6):
-            x = np.zeros(6)
-            x[k] = h
-            Jn[:, k] = (fn.evaluate(pose.retract(x).matrix(), False, b)[0]
-                        - fn.evaluate(pose.retract(-x).matrix(), False, b)[0]) / (2 * h)
-        for k in range(4):
-            d = np.zeros(4)
-            d[k] = 1e-5
-            Jn[:, 6 + k] = (fn.evaluate(E, False, b + d)[0] - fn.evaluate(E, False, b - d)[0]) / 2e-5
+        Jn = _central_differences(fn, pose, b)
         for row in range(2):
             assert np.max(np.abs(J[row] - Jn[row])) <= 1e-6 * np.max(np.abs(Jn[row]))
         assert np.allclose(fn.evaluate(E, False, np.zeros(4))[0], pl.evaluate(E, False)[0], atol=1e-9)
@@ -296,7 +301,7 @@ def test_persistent_line_offset_no_longer_drags_the_batch():
     100 px: w = 2, l = 0.3, w_s = 2, like RANSAC lines pulled in at the shaft's end),
     plus 0.5 px / 1 mrad noise: with the bias state the batch's translation error is
     well below the error without it (the markers then carry what the lines no
-    longer say for sure)."""
+    longer say for sure; 18.8 -> 6.7 mm when written)."""
     robot, cam, E0, frames = sequence(120, seed=2, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), marker_noise=1.0)
     rng = np.random.default_rng(5)
     moved = []
@@ -307,14 +312,6 @@ def test_persistent_line_offset_no_longer_drags_the_batch():
         direction = reference_direction(E0, axis.p0, axis.d, cam.K)
         lines = [_moved_line(L[i], o, s, direction, cam.K[:2, 2]) for i, o, s in ((0, 2.3, 2.0), (1, 1.7, 2.0))]
         moved.append(np.array([l + rng.normal(0, [0.5, 1e-3]) for l in lines]))
-    errs = {}
-    for on in (False, True):
-        est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities-polar",
-                             edge_bias=on, covariance=False)
-        for f, lines in zip(frames, moved):
-            est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]),
-                     Observation("line-intensities-polar", lines=lines, markers=f.markers))
-        out = est.finish()
-        e = np.array([left_error(f.E_true, x.E) for f, x in zip(frames, out)])
-        errs[on] = np.linalg.norm(e[:, :3], axis=1).mean()
+    obs = [Observation("line-intensities-polar", lines=ln, markers=f.markers) for f, ln in zip(frames, moved)]
+    errs = _batch_errors_with_and_without_bias(robot, cam, E0, frames, obs)
     assert errs[True] < 0.6 * errs[False], errs

@@ -125,7 +125,7 @@ class FactorOptions:
     conservative. Inflating sigma instead (sigma sqrt(m / n)) also widened the
     robust kernel to ~10 px and let 20 % outlier pixels pull the estimate.
 
-    edge_bias (pixel models only): the frames carry the detector's edge-bias
+    edge_bias: the frames carry the detector's edge-bias
     vector b = (lateral offset, lateral slope, width offset, width slope) px
     (:mod:`factors.edge_bias`), a Gauss-Markov process with stationary spreads
     edge_bias_sigma_lateral / _lateral_slope / _width / _width_slope (px) and
@@ -150,6 +150,23 @@ class FactorOptions:
     from the prior (synthetic) 90 of 100 runs are within 3 mm at frame 40,
     against 99 without it (the depth is then held by the markers, which wait
     for the gate); with the painted-disc markers, 86 against 100.
+
+    The polar models' detected lines are on the same state
+    (:mod:`factors.line_parameter`: the limb moved by the bias before (rho,
+    theta) are compared), with the same spreads. A RANSAC line fitted near the
+    shaft's end, where the end face's corner pulls it in, stays a few px and
+    tenths of a degree off its limb for seconds (a benchmark recording: one
+    limb 4.0 +- 1.3 px and 0.37 deg off over 300 frames); the batch then locked
+    onto it and lost to the smoother on those models. Measured on the eight
+    tuning recordings (learned detector; endpoint- and line-intensities-polar,
+    16 runs, mean tip error): smoother 2.01 -> 1.91 px, batch 1.37 -> 0.93 px
+    (at or below the smoother in 15 of 16 runs); with the Canny detector's
+    lines (8 runs): smoother 2.37 -> 2.13 px, batch 2.45 -> 0.84 px (8 of 8).
+    The smoother puts its lines on the state only from its settle time on
+    (``line_bias`` of :func:`frame_factor_groups`): from the first frame the
+    state took up a tuning recording's 40 px start-up error and the smoother
+    stayed 20-50 px off (36 px mean; 7.1 px without the state, 6.4 px with it
+    from 2 s on).
 
     marker_discs: a point feature with a ``radius`` in robot.json (a painted
     disc on the shaft) is predicted by the centroid of its image, not the

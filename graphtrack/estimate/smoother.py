@@ -60,6 +60,11 @@ frames/s end to end against 53 with 1e-3 and two passes (the slow frames were
 the relinearisations), with the same tip error (11.9 vs 11.8 px there, and
 unchanged on four tuning recordings).
 
+Polar models with the edge-bias state: a frame's detected lines are on the
+bias vector only once settled (below); before, they are on E_t alone (see
+FactorOptions: from the first frame the state took up a tuning recording's
+start-up error and the smoother never recovered).
+
 Settled relinearisation. Once ``settle`` seconds (default 2) have passed since
 the start-up frame, new frames are keyed y_t instead of x_t, and iSAM2's
 threshold map relinearises them at ``settled_relinearize_threshold`` (2e-2,
