@@ -184,3 +184,47 @@ def test_settled_frames_relinearise_coarser():
                      Observation("line-intensities", pixels=f.pixels, markers=f.markers))
     assert est.settled and chr(gtsam.Symbol(est.prev_key).chr()) == "y"
     assert within(left_error(frames[-1].E_true, e.E), 1.0, 0.5)
+
+
+def test_polar_lines_join_the_edge_bias_state_once_settled():
+    """Polar models with the default edge-bias state: the smoother's lines are on E_t
+    alone until its settle time (2 s after the start-up frame), then on (E_t, b_j);
+    the batch's are on (E_t, b_j) from the first frame. On noise-free data both
+    converge."""
+    import gtsam
+
+    from graphtrack.estimate.graph import FactorOptions, frame_factor_groups
+
+    robot, cam, E0, frames = sequence(2, seed=0, scene=SCENE, pixel_noise=0.0, marker_noise=0.0)
+    f = frames[0]
+    obs = Observation("line-intensities-polar", lines=f.lines, markers=f.markers)
+    for line_bias, n_keys in ((False, 1), (True, 2)):
+        shaft, _ = frame_factor_groups(0, f.q, obs, robot, cam.K, FactorOptions(), "line-intensities-polar", E0,
+                                       line_bias=line_bias)
+        assert len(shaft) == 2 and all(len(fac.keys()) == n_keys for fac in shaft)
+
+    opts = {"observation": "line-intensities-polar", "edge_bias": True}
+    est_frames, _, errs = run("smoother", 150, polar=True, pixel_noise=0.0, marker_noise=0.0, options=opts)
+    assert within(errs[-1], 0.3, 0.15), errs[-1]
+    _, _, errs_b = run("batch", 150, polar=True, pixel_noise=0.0, marker_noise=0.0,
+                       options={**opts, "covariance": False})
+    assert within(errs_b[-1], 0.3, 0.15), errs_b[-1]
+
+    est = make_estimator("smoother", TrackingContext(robot, cam, E0), **opts)
+    keys_per_frame = []
+    for fr in est_frames[:90]:
+        est.step(Frame(fr.index, fr.stamp, None, fr.q[:6], fr.q[6]),
+                 Observation("line-intensities-polar", lines=fr.lines, markers=fr.markers))
+        graph = est.smoother.getFactors()
+        newest = {}
+        for i in range(graph.size()):
+            fac = graph.at(i)
+            if fac is not None and type(fac).__name__ == "CustomFactor" and fac.dim() == 2:
+                sym = gtsam.Symbol(fac.keys()[0])
+                k_ = (chr(sym.chr()), sym.index())       # markers are on E_t alone: take the most keys
+                newest[k_] = max(newest.get(k_, 0), len(fac.keys()))
+        k = fr.index
+        key = ("y", k) if ("y", k) in newest else ("x", k)
+        keys_per_frame.append((key[0], newest.get(key)))
+    assert keys_per_frame[30] == ("x", 1)          # 1 s: lines on E_t alone
+    assert keys_per_frame[89] == ("y", 2)          # 3 s: settled, lines on (E_t, b_j)
