@@ -35,7 +35,14 @@ line, the biased line is
     L' = (n - k_i u, c - o_i + k_i u.x0)
 
 (a pixel x is on it when n.x + c = o_i + k_i u.(x - x0)), and theta, rho are
-taken of L' as above. Its Jacobians follow by the chain rule:
+taken of L' as above. (The offset is anchored at x0, where a pixel set's is
+at its centroid, so the same b moves a line and a pixel set of one edge alike
+only near x0; each model family estimates its own b.) The frame's lines are
+paired with the limbs on E alone (unbiased costs), as the pixel sets are. b
+enters (rho, theta) nonlinearly through the slope (at a 1-sigma slope of 3 px /
+100 px the first-order prediction in b is off by ~0.3 px of rho against
+sigma_rho = 3 px), which the smoother's fixed linearisation point of b
+tolerates. Its Jacobians follow by the chain rule:
 dn/d(A, B) = (I - n n^T)/s, dc/d(A, B, C) = (-C A/s^3, -C B/s^3, 1/s),
 dL'/do_i = (0, 0, -1), dL'/dk_i = (-u, u.x0). A RANSAC line fitted near the
 shaft's end, where the end face's corner pulls it inwards, is off its limb
@@ -89,32 +96,29 @@ class LineParameterError(PoseBiasErrorFunction):
         k = ok[:, 1:2] / SLOPE_SCALE
         return np.hstack([L[:, :2] / s - k * self.u, L[:, 2:] / s - ok[:, 0:1] + k * self.ux0])
 
-    def _differences(self, L: np.ndarray):
-        L = self.biased(L)
+    def _differences(self, L: np.ndarray, biased: bool = True):
+        if biased:
+            L = self.biased(L)
         A, B, C = L[:, 0], L[:, 1], L[:, 2]
         s = np.hypot(A, B)
         return line_difference(-C / s, np.arctan2(B, A), self.rho_d, self.theta_d)
 
     def costs(self, L: np.ndarray) -> np.ndarray:
-        """Whitened squared difference (2,) of the detected line to each limb of L (2, 3)."""
-        drho, dth = self._differences(L)
+        """Whitened squared difference (2,) of the detected line to each limb of L (2, 3),
+        unbiased: the frame's lines are paired with the limbs on E alone, as the pixel
+        sets are (a slope of a few sigma turns a line about x0, hundreds of px from the
+        image origin, enough to swap the pairing, which b's Jacobian cannot see)."""
+        drho, dth = self._differences(L, biased=False)
         return (drho / self.sig[0]) ** 2 + (dth / self.sig[1]) ** 2
-
-    def _set_bias(self, b: np.ndarray) -> None:
-        """Take b for this frame's lines (they share it) and re-pair them if it changed."""
-        b = np.asarray(b, float)
-        if not np.array_equal(b, self.b):
-            for m in self.pairing.members:
-                if getattr(m, "bias", False):
-                    m.b = b.copy()
-            self.pairing._key = None
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True, b: np.ndarray | None = None):
         """Unwhitened residual (d_rho px, d_theta rad) and its Jacobian: (2, 6) d/dxi, or
-        with the bias state (b given) (2, 10) [d/dxi, d/db]."""
+        with the bias state (b given; required then) (2, 10) [d/dxi, d/db]."""
+        if self.bias != (b is not None):
+            raise ValueError("LineParameterError: b must be given exactly when the factor is on the edge-bias state")
         ncols = 6 if b is None else 6 + BIAS_DIM
         if b is not None:
-            self._set_bias(b)
+            self.b = np.asarray(b, float)
         L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)
         if not valid:
             self.limb = -1

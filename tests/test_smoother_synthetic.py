@@ -105,7 +105,7 @@ def test_nees_consistent_over_independent_runs():
 
     The synthetic pixels are independent and unbiased, so the matched model counts
     every pixel (pixel_effective_count=0) and has no edge-bias state; the defaults
-    (n_eff = 20 per edge and the edge-bias state, for a real detector's edge-wide
+    (n_eff = 10 per edge and the edge-bias state, for a real detector's edge-wide
     errors) must then be the conservative side: NEES below."""
     from graphtrack.eval.consistency import monte_carlo_nees
     from graphtrack.estimate.smoother import FixedLagSmootherEstimator

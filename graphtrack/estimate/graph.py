@@ -211,8 +211,9 @@ class FactorOptions:
         return make_kernel(self.robust, self.robust_k)
 
     def uses_edge_bias(self, model: str | None) -> bool:
-        """Whether frames carry the edge-bias state (``edge_bias``; every observation
-        model: the pixel sets and the polar models' detected lines)."""
+        """Whether frames carry the edge-bias state: ``edge_bias``, whatever the
+        observation ``model`` (the pixel sets and the polar models' detected lines
+        are both on it; the argument stays for callers that ask per model)."""
         return bool(self.edge_bias)
 
     @property

@@ -148,9 +148,11 @@ class FixedLagSmootherEstimator:
             th.insert(("x", np.full(6, float(relinearize_threshold))))
             th.insert(("y", np.full(6, float(settled_relinearize_threshold))))
             if self.bias:
-                # b enters the residuals linearly (only the robust weights depend on it,
-                # and they stay at b's linearisation point): relinearising for its moves
-                # (px) re-evaluated every pixel factor of the window each frame (10x slower)
+                # b enters the pixel residuals linearly (only the robust weights depend on
+                # it, and they stay at b's linearisation point) and the polar lines' nearly
+                # (~0.3 px of rho at a 1-sigma slope, factors/line_parameter.py): relinearising
+                # for its moves (px) re-evaluated every pixel factor of the window each
+                # frame (10x slower)
                 th.insert(("b", np.full(BIAS_DIM, 1e3)))
             p.setRelinearizeThreshold(th)
             self.smoother = gtsam.IncrementalFixedLagSmoother(self.lag, p)
@@ -209,7 +211,7 @@ class FixedLagSmootherEstimator:
                 g.add(f)
             v = gtsam.Values()
             v.insert(x, pose)
-            if self.bias:           # the shaft factors are on (x, b): b at its stationary prior
+            if self.bias:           # pixel sets are on (x, b) (polar lines not yet): b at its prior
                 j = k // self.fopts.edge_bias_period
                 g.add(bias_prior_factor(j, self.fopts.edge_bias_sigmas))
                 v.insert(bias_key(j), np.zeros(BIAS_DIM))
