@@ -99,14 +99,17 @@ class MarkerError(PoseErrorFunction):
         per step: this runs at every linearisation of every frame)."""
         R, t = E[:3, :3], E[:3, 3]
         M, S = self.samples.shape[:2]
-        P = self.samples.reshape(-1, 3)
-        X = P @ R.T + t
-        Z = X[:, 2]
-        front = Z > 1e-6
-        iz = 1.0 / np.where(front, Z, 1.0)
-        x, y = X[:, 0] * iz, X[:, 1] * iz
         fx, fy = self.K[0, 0], self.K[1, 1]
-        u = np.stack([fx * x + self.K[0, 2], fy * y + self.K[1, 2]], -1)
+
+        def pinhole(P):   # camera points, 1/Z (1 behind the camera), x/Z, y/Z, pixels
+            X = P @ R.T + t
+            iz = 1.0 / np.where(X[:, 2] > 1e-6, X[:, 2], 1.0)
+            x, y = X[:, 0] * iz, X[:, 1] * iz
+            return X, iz, x, y, np.stack([fx * x + self.K[0, 2], fy * y + self.K[1, 2]], -1)
+
+        P = self.samples.reshape(-1, 3)
+        X, iz, x, y, u = pinhole(P)
+        front = X[:, 2] > 1e-6
         usable = front.reshape(M, S).all(1)
         if self.normals is None or not self.disc.any():
             c = u.reshape(M, S, 2).mean(1)
@@ -122,12 +125,9 @@ class MarkerError(PoseErrorFunction):
             hidden = usable & (W <= 0)
             if hidden.any():     # a hidden disc: its centre, as a point marker (see the module doc)
                 rows = np.flatnonzero(np.repeat(hidden, S)).reshape(-1, S)[:, 0]
-                P, X, u, iz, x, y = P.copy(), X.copy(), u.copy(), iz.copy(), x.copy(), y.copy()
+                P = P.copy()
                 P[rows] = self.P[hidden]
-                X[rows] = self.P[hidden] @ R.T + t
-                iz[rows] = 1.0 / X[rows, 2]
-                x[rows], y[rows] = X[rows, 0] * iz[rows], X[rows, 1] * iz[rows]
-                u[rows] = np.stack([fx * x[rows] + self.K[0, 2], fy * y[rows] + self.K[1, 2]], -1)
+                X, iz, x, y, u = pinhole(P)
                 w[rows] = 1.0
                 live[rows] = False
                 W = w.reshape(M, S).sum(1)

@@ -274,14 +274,14 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     model = observation.model or model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
+        direction = None            # orients the bias slopes, the same way in every frame
+        if b is not None and E_ref is not None:
+            direction = reference_direction(np.asarray(E_ref, float), F.shaft_p0[0], F.shaft_d[0], K)
         if model in POLAR_MODELS or (len(observation.lines) and not observation.pixels):
             lines = np.asarray(observation.lines, float).reshape(-1, 2)
             lines = lines[np.all(np.isfinite(lines), axis=1)]
             pairing = LimbPairing() if len(lines) > 1 else None
             lb = b if line_bias else None
-            direction = None
-            if lb is not None and E_ref is not None:
-                direction = reference_direction(np.asarray(E_ref, float), F.shaft_p0[0], F.shaft_d[0], K)
             for line in lines:
                 out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
                                                  opts.line_sigma_theta, kern, pairing, lb, direction))
@@ -290,9 +290,6 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
             sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]
             sets = [px for px in sets if len(px)]
             pairing = LimbPairing() if len(sets) > 1 else None
-            direction = None
-            if b is not None and E_ref is not None:
-                direction = reference_direction(np.asarray(E_ref, float), F.shaft_p0[0], F.shaft_d[0], K)
             for px in sets:
                 if opts.max_pixels and len(px) > opts.max_pixels:
                     px = px[np.linspace(0, len(px) - 1, opts.max_pixels).astype(int)]
