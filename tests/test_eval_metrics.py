@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from graphtrack.eval import metrics as M
+from graphtrack.eval.metrics import paired_difference
 from graphtrack.geometry.se3 import bw_to_matrix
 
 
@@ -83,3 +84,42 @@ def test_truth_errors_and_3d_tip(tmp_path):
     doc = M.truth_metrics(errs)
     assert doc["translation_error_mm"]["mean"] == pytest.approx(2.0)
     assert doc["nees"]["dof"] == 6
+
+
+# -- paired_difference: oracles from normal theory ------------------------------------
+def test_paired_difference_of_a_constant_shift_is_that_shift_with_no_spread():
+    a = np.linspace(1.0, 3.0, 90)
+    r = paired_difference(a, a - 0.25)
+    assert r["mean"] == pytest.approx(0.25) and r["frames"] == 90
+    assert r["low"] == pytest.approx(0.25) and r["high"] == pytest.approx(0.25)
+
+
+def test_paired_difference_interval_matches_normal_theory_for_independent_frames():
+    rng = np.random.default_rng(3)
+    n = 4000
+    d = 0.5 + rng.normal(size=n)
+    r = paired_difference(d, np.zeros(n), block=1, resamples=4000)
+    half = 1.959964 * d.std() / np.sqrt(n)          # the normal-theory 95 % half-width
+    assert r["mean"] == pytest.approx(d.mean())
+    assert (r["high"] - r["low"]) / 2 == pytest.approx(half, rel=0.1)
+    assert r["low"] < d.mean() < r["high"]
+
+
+def test_paired_difference_blocks_widen_the_interval_for_persistent_errors():
+    # 100 independent N(0, 1) values, each held for 30 frames: the mean's standard
+    # error is 1 / sqrt(100), not 1 / sqrt(3000)
+    rng = np.random.default_rng(4)
+    d = np.repeat(rng.normal(size=100), 30)
+    wide = paired_difference(d, np.zeros_like(d), block=30, resamples=4000)
+    narrow = paired_difference(d, np.zeros_like(d), block=1, resamples=4000)
+    se = d.reshape(100, 30)[:, 0].std() / np.sqrt(100)
+    assert (wide["high"] - wide["low"]) / 2 == pytest.approx(1.959964 * se, rel=0.25)
+    assert (narrow["high"] - narrow["low"]) < 0.5 * (wide["high"] - wide["low"])
+
+
+def test_paired_difference_skips_unscored_frames_and_reports_nan_when_none_are_shared():
+    a = np.array([1.0, np.nan, 3.0, 4.0])
+    b = np.array([0.0, 1.0, np.nan, 2.0])
+    r = paired_difference(a, b, block=1)
+    assert r["frames"] == 2 and r["mean"] == pytest.approx(1.5)
+    assert np.isnan(paired_difference([np.nan], [1.0])["mean"])

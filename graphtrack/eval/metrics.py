@@ -84,6 +84,34 @@ def tip_error_series(trajectory: dict, labels: dict[int, np.ndarray],
     return frames, errs
 
 
+def paired_difference(a: np.ndarray, b: np.ndarray, block: int = 30, resamples: int = 2000,
+                      seed: int = 0, level: float = 0.95) -> dict:
+    """Mean of d_k = a_k - b_k over the frames both score, with a moving-block
+    bootstrap confidence interval.
+
+    a, b: per-frame errors of two estimators on the same frames (same units,
+    NaN where a frame is not scored). Tracking errors persist for seconds, so
+    frames are not independent: the bootstrap draws ceil(n / block) blocks of
+    ``block`` consecutive differences (30 frames: 1 s at 30 Hz) with
+    replacement, truncates to n and averages; the interval is the central
+    ``level`` percentile range of ``resamples`` such means (``seed`` fixes the
+    draws). A difference whose interval holds 0 is not decided by the data.
+    Returns {"mean", "low", "high", "frames"} (NaN when no frame is shared).
+    """
+    d = np.asarray(a, dtype=float).ravel() - np.asarray(b, dtype=float).ravel()
+    d = d[np.isfinite(d)]
+    n = len(d)
+    if n == 0:
+        return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "frames": 0}
+    L = int(min(max(block, 1), n))
+    starts = np.random.default_rng(seed).integers(0, n - L + 1, size=(int(resamples), -(-n // L)))
+    idx = (starts[:, :, None] + np.arange(L)).reshape(int(resamples), -1)[:, :n]
+    means = d[idx].mean(axis=1)
+    tail = 50.0 * (1.0 - level)
+    low, high = np.percentile(means, [tail, 100.0 - tail])
+    return {"mean": float(d.mean()), "low": float(low), "high": float(high), "frames": int(n)}
+
+
 # -- runtime --------------------------------------------------------------------------
 def runtime_metrics(ms: np.ndarray) -> dict:
     """Per-frame runtime statistics (ms): mean, std, median, p95, max, and the fps of the median."""
