@@ -24,7 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # runnable from a 
 
 
 def _one(scene: str, seed: int, tmp: Path) -> tuple[float, float]:
-    from graphtrack.io.bag import write_bag
+    from graphtrack.io.bag_write import write_bag
     from graphtrack.sim.simulate import Simulation
 
     t0 = time.perf_counter()

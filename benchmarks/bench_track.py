@@ -76,7 +76,7 @@ def long_recording(size=(1080, 1920), frames=1800) -> Path:
 
     import cv2
 
-    from graphtrack.io.bag import write_bag
+    from graphtrack.io.bag_write import write_bag
     from graphtrack.io.recording import open_recording
 
     src = recording(size)

@@ -11,7 +11,7 @@ import yaml
 
 from graphtrack.cli import main
 from graphtrack.geometry.camera import Calibration, Camera, save_calibration
-from graphtrack.io.bag import write_bag
+from graphtrack.io.bag_write import write_bag
 from graphtrack.io.folder import write_folder
 from graphtrack.io.handeye import save_handeye
 from graphtrack.robot.description import save_robot_json
@@ -173,7 +173,7 @@ def test_bag_without_joint_topic_exit_2(tmp_path, capsys):
         p.unlink()
     (seq / "frames").rmdir()
     (seq / "joints.csv").unlink()
-    with Writer(seq / "rec.bag") as w:  # an empty but valid bag
+    with Writer(seq / "rec.bag"):  # an empty but valid bag
         pass
     code, err = run_cli(["track", str(seq), "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and ("/stereo/left/image" in err or "/dvrk/PSM1" in err or "rec.bag" in err)

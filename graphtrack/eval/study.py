@@ -27,25 +27,19 @@ the N runs, with their spread; results.csv keeps every run. One seed of a
 particle filter is one draw: on the benchmark's structured recording, four
 filter seeds of line-intensities-polar gave 4.5, 5.9, 9.5 and 6.8 px.
 
-Cells run in local processes (``workers``) or as Ray tasks (``ray_address``).
+Cells run in local processes (``workers``) or as Ray tasks (``ray_address``),
+by :mod:`graphtrack.eval.study_exec`.
 """
 from __future__ import annotations
 
-import argparse
 import importlib
 import json
 import os
-import shutil
-import sys
-import tempfile
-import time
-import traceback
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from graphtrack.errors import InputError
+from graphtrack.eval.study_exec import run_local, run_ray
 # the report is read back from the cell folders; format_table / cell_status are re-exported
 from graphtrack.eval.study_report import cell_status, format_table, is_done, plot_accumulated, write_tables  # noqa: F401
 
@@ -220,179 +214,6 @@ def check_study_folder(out: Path, options: StudyOptions, cells: list[Cell]) -> N
         os.replace(tmp, doc_path)
     except OSError as e:
         raise InputError(f"{out}: cannot write the study folder ({e.strerror})") from None
-
-
-# -- running one cell -----------------------------------------------------------------
-def track_options(cell: Cell):
-    """The TrackOptions of a cell, exactly as ``graphtrack track`` would build them."""
-    from graphtrack.commands.track import options_from_args
-
-    o = cell.options
-    args = argparse.Namespace(estimator=cell.estimator, observation=cell.observation or "line-intensities",
-                              detector=o["detector"], weights=o["weights"], no_markers=not o["markers"],
-                              particles=o["particles"], lag=o["lag"], smoother=o["smoother"], seed=o["seed"],
-                              alpha=o["alpha"], beta=o["beta"])
-    return options_from_args(args)
-
-
-def _track_into(cell: Cell, out: Path) -> dict:
-    from graphtrack.track import track
-
-    return track(cell.path, out, track_options(cell), video=cell.video, progress=False,
-                 max_frames=cell.options["max_frames"], quiet=True)
-
-
-def _json_safe(x):
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return float(x)
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    return x
-
-
-def _finish(cell: Cell, result: dict, seconds: float) -> dict:
-    out = Path(cell.out)
-    (out / "error.json").unlink(missing_ok=True)
-    doc = {"cell": asdict(cell), "options": cell.options, "seconds": seconds, "result": _json_safe(result)}
-    tmp = out / "done.json.tmp"
-    tmp.write_text(json.dumps(doc, indent=2))
-    os.replace(tmp, out / "done.json")  # last: marks the cell complete
-    return {"key": cell.key, "recording": cell.recording, "ok": True, "seconds": seconds}
-
-
-def _fail(cell: Cell, e: BaseException) -> dict:
-    msg = f"{type(e).__name__}: {e}" if not isinstance(e, InputError) else str(e)
-    out = Path(cell.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "error.json").write_text(json.dumps({"error": msg, "traceback": traceback.format_exc()},
-                                                   indent=2))
-    except OSError:
-        pass
-    return {"key": cell.key, "recording": cell.recording, "ok": False, "error": msg}
-
-
-def run_cell(cell: Cell) -> dict:
-    """Run one cell into its folder (local processes). Never raises for a cell's own failure."""
-    out = Path(cell.out)
-    (out / "done.json").unlink(missing_ok=True)
-    t = time.perf_counter()
-    try:
-        result = _track_into(cell, out)
-    except Exception as e:  # noqa: BLE001 - a failing cell is reported, the study goes on
-        return _fail(cell, e)
-    return _finish(cell, result, time.perf_counter() - t)
-
-
-def run_cell_portable(cell: Cell) -> tuple[dict, dict[str, bytes] | None, str | None]:
-    """Run one cell in a scratch folder and return (result, {file: bytes}, error).
-
-    For Ray workers that may not share the study folder's file system: the
-    driver writes the files into the cell folder (the recording must still be
-    readable at ``cell.path`` on the worker).
-    """
-    tmp = Path(tempfile.mkdtemp(prefix="graphtrack-cell-"))
-    t = time.perf_counter()
-    try:
-        result = _track_into(cell, tmp)
-        files = {p.name: p.read_bytes() for p in tmp.iterdir() if p.is_file()}
-        result["_seconds"] = time.perf_counter() - t
-        return _json_safe(result), files, None
-    except Exception as e:  # noqa: BLE001
-        msg = f"{type(e).__name__}: {e}" if not isinstance(e, InputError) else str(e)
-        return {}, None, msg + "\n" + traceback.format_exc()
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _store_portable(cell: Cell, answer) -> dict:
-    result, files, err = answer
-    out = Path(cell.out)
-    out.mkdir(parents=True, exist_ok=True)
-    if err is not None:
-        msg, _, tb = err.partition("\n")
-        (out / "error.json").write_text(json.dumps({"error": msg, "traceback": tb}, indent=2))
-        return {"key": cell.key, "recording": cell.recording, "ok": False, "error": msg}
-    for name, data in files.items():
-        (out / name).write_bytes(data)
-    return _finish(cell, result, float(result.pop("_seconds", float("nan"))))
-
-
-# -- executors ---------------------------------------------------------------------------
-def _bar(total: int, quiet: bool):
-    from tqdm import tqdm
-
-    return tqdm(total=total, desc="study", unit="cell", file=sys.stderr, disable=quiet)
-
-
-def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[dict]:
-    answers = []
-    with _bar(len(cells), quiet) as bar:
-        if workers <= 1 or len(cells) <= 1:
-            for c in cells:
-                bar.set_postfix_str(f"{c.recording}/{c.key}")
-                answers.append(run_cell(c))
-                bar.update(1)
-            return answers
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
-            futures = {ex.submit(run_cell, c): c for c in cells}
-            for fut in as_completed(futures):
-                c = futures[fut]
-                try:
-                    answers.append(fut.result())
-                except Exception as e:  # noqa: BLE001 - e.g. a worker killed by the OS
-                    answers.append(_fail(c, e))
-                bar.update(1)
-    return answers
-
-
-def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: bool = False) -> list[dict]:
-    """Run the cells as Ray tasks. address: 'local' (start a local instance),
-    'auto' (the running cluster) or a cluster address (ray://host:10001, host:6379)."""
-    try:
-        import ray
-    except ImportError:
-        raise InputError("--ray needs Ray: pip install 'graphtrack[ray]'") from None
-    started = False
-    if not ray.is_initialized():
-        kw = {"ignore_reinit_error": True, "include_dashboard": False, "log_to_driver": False}
-        try:
-            if address == "local":
-                # workers find graphtrack where this process found it (also when not installed)
-                pkg_root = str(Path(__file__).resolve().parents[2])
-                kw["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join(
-                    [pkg_root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}}
-                ray.init(num_cpus=workers or None, **kw)
-            else:
-                ray.init(address=address, **kw)
-        except Exception as e:  # noqa: BLE001 - connection errors of many kinds
-            raise InputError(f"--ray {address}: cannot connect to Ray ({type(e).__name__}: {e})") from None
-        started = True
-    remote = ray.remote(num_cpus=1, max_retries=1)(run_cell_portable)
-    answers = []
-    try:
-        pending = {remote.remote(c): c for c in cells}
-        with _bar(len(cells), quiet) as bar:
-            while pending:
-                ready, _ = ray.wait(list(pending), num_returns=1)
-                for ref in ready:
-                    c = pending.pop(ref)
-                    try:
-                        answers.append(_store_portable(c, ray.get(ref)))
-                    except Exception as e:  # noqa: BLE001 - worker crash, lost node
-                        answers.append(_fail(c, e))
-                    bar.update(1)
-    finally:
-        if started:
-            ray.shutdown()
-    return answers
 
 
 # -- the whole study ----------------------------------------------------------------------

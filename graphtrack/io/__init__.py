@@ -6,7 +6,8 @@
 - :class:`TrajectoryWriter` / :func:`read_trajectory` (trajectory.csv, .tum, truth.csv);
 - :func:`write_bag` / :func:`write_folder` (what the simulator writes).
 """
-from graphtrack.io.bag import BagSource, write_bag
+from graphtrack.io.bag import BagSource
+from graphtrack.io.bag_write import write_bag
 from graphtrack.io.folder import FolderSource, write_folder
 from graphtrack.io.handeye import load_handeye, save_handeye
 from graphtrack.io.labels import read_labels, write_labels

@@ -174,7 +174,7 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
 
             it = tqdm(it, total=sim.n, desc=f"simulate {scene}", unit="frame")
         if form == "bag":
-            from graphtrack.io.bag import write_bag
+            from graphtrack.io.bag_write import write_bag
 
             write_bag(out / "recording.bag", it, compressed=compressed, image_format="png")
         else:
