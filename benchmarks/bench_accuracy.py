@@ -63,6 +63,7 @@ def run(results: dict) -> dict:
                                        repeats=REPEATS), workers=WORKERS, names=[s for s, _ in RECORDINGS])
     runs: dict = {}   # (recording, estimator, observation) -> {seed: mean tip px}
     truth: dict = {}  # the same against the exact truth: {seed: (2-D px, 3-D mm)}
+    states: dict = {}  # (recording, estimator, observation) -> {seed: the run's state}
     with open(out / "results.csv") as f:
         for row in csv.DictReader(f):
             try:
@@ -71,6 +72,7 @@ def run(results: dict) -> dict:
                 v = float("nan")
             k = (row["recording"], row["estimator"], row["observation"])
             runs.setdefault(k, {})[int(row["seed"])] = v
+            states.setdefault(k, {})[int(row["seed"])] = row.get("state", "")
             if row["estimator"] != "kinematics":      # (the table has no truth row for it)
                 truth.setdefault(k, {})[int(row["seed"])] = (out, row.get("state") == "done")
     for k, v in truth.items():   # the study's folders: the first repeat (lowest seed) without a suffix
@@ -127,7 +129,7 @@ def run(results: dict) -> dict:
             trows.append(f"| {m} | " + " | ".join(f"{v:.2f}" for v in vals) + " |")
         name = "mean 2-D tip error against the exact truth (px)" if i == 0 else "mean 3-D tip error (mm)"
         res["tables"][name] = "\n".join(trows)
-    res["tables"].update(_paired_tables(out, dict(zip(scenes, paths)), runs, shared))
+    res["tables"].update(_paired_tables(out, dict(zip(scenes, paths)), states, shared))
     res["shared_models"] = len(shared)
     res["study_folder"] = str(out)
     for line in rows + [""] + spread:
@@ -139,13 +141,16 @@ def run(results: dict) -> dict:
 PAIRS = (("smoother", "pf"), ("batch", "smoother"))
 
 
-def _paired_tables(out: Path, recordings: dict, runs: dict, shared: list) -> dict:
+def _paired_tables(out: Path, recordings: dict, states: dict, shared: list) -> dict:
     """Per scene and model, the per-frame paired difference of the 2-D tip error
     (a - b, px, each estimator's errors averaged over its seeds frame by frame)
     with its 95 % moving-block bootstrap interval
     (:func:`graphtrack.eval.metrics.paired_difference`), against labels.csv and
     against the exact truth. An interval that holds 0 means the recording does
-    not decide the order of the two estimators."""
+    not decide the order of the two estimators. ``states``: (recording,
+    estimator, model) -> {seed: the run's state in results.csv}; a cell with a
+    run that is not done is NaN (as in the tables of means), not the mean of
+    the seeds that finished, nor a failed run's partial trajectory."""
     from graphtrack.detect.base import OBSERVATION_MODELS
     from graphtrack.eval.metrics import paired_difference, tip_errors
     from graphtrack.io.labels import read_labels
@@ -157,21 +162,22 @@ def _paired_tables(out: Path, recordings: dict, runs: dict, shared: list) -> dic
         refs[s] = {"labels": read_labels(Path(p) / "labels.csv"),
                    "truth": {int(f): tip for f, tip in zip(t["frame"], t["tip"])}}
 
-    def per_frame(s, est, m, ref):   # frame -> mean error over the cell's seeds
-        seeds = sorted(runs.get((s, est, m), {}))
+    def per_frame(s, est, m, ref):   # per labelled frame, the mean error over the cell's seeds
+        runs = states.get((s, est, m), {})
         frames = sorted(refs[s][ref])
+        if not runs or any(state != "done" for state in runs.values()):
+            return np.full(len(frames), np.nan)
+        seeds = sorted(runs)
         acc = np.full((len(seeds), len(frames)), np.nan)
         for i, seed in enumerate(seeds):
             folder = out / "runs" / s / (f"{est}-{m}" + ("" if seed == seeds[0] else f".seed{seed}"))
-            try:
-                tr = read_trajectory(folder / "trajectory.csv")
-            except Exception:     # a failed or missing run: its frames stay NaN
-                continue
+            tr = read_trajectory(folder / "trajectory.csv")
             f, e = tip_errors(tr["frame"], tr["tip"], refs[s][ref])
             acc[i, np.searchsorted(frames, f)] = e
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        # a frame a run skipped is NaN in that run: the frame's mean is over the runs that scored it
+        with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
-            return np.nanmean(acc, axis=0) if len(seeds) else np.full(len(frames), np.nan)
+            return np.nanmean(acc, axis=0)
 
     tables = {}
     for a, b in PAIRS:

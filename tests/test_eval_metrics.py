@@ -106,15 +106,29 @@ def test_paired_difference_interval_matches_normal_theory_for_independent_frames
 
 
 def test_paired_difference_blocks_widen_the_interval_for_persistent_errors():
-    # 100 independent N(0, 1) values, each held for 30 frames: the mean's standard
-    # error is 1 / sqrt(100), not 1 / sqrt(3000)
+    # 100 independent N(0, 1) values, each held for 30 frames. Oracle: the
+    # moving-block bootstrap's mean is the average of k = n / L blocks drawn
+    # uniformly from the n - L + 1 moving blocks, so its variance is exactly
+    # var(moving-block means) / k (no resampling needed); with 2000 draws the
+    # percentile interval's half-width is 1.96 times its square root to ~5 %.
     rng = np.random.default_rng(4)
     d = np.repeat(rng.normal(size=100), 30)
-    wide = paired_difference(d, np.zeros_like(d), block=30, resamples=4000)
+    n, L = len(d), 30
+    block_means = np.convolve(d, np.ones(L) / L, mode="valid")       # the n - L + 1 moving blocks
+    exact_half = 1.959964 * np.sqrt(block_means.var() / (n // L))
+    wide = paired_difference(d, np.zeros_like(d), block=L, resamples=4000)
+    assert (wide["high"] - wide["low"]) / 2 == pytest.approx(exact_half, rel=0.08)
+    # frames counted as independent claim an interval several times narrower
     narrow = paired_difference(d, np.zeros_like(d), block=1, resamples=4000)
-    se = d.reshape(100, 30)[:, 0].std() / np.sqrt(100)
-    assert (wide["high"] - wide["low"]) / 2 == pytest.approx(1.959964 * se, rel=0.25)
     assert (narrow["high"] - narrow["low"]) < 0.5 * (wide["high"] - wide["low"])
+
+
+def test_paired_difference_refuses_unpaired_errors_and_too_few_frames_for_its_blocks():
+    with pytest.raises(ValueError, match="same frames"):
+        paired_difference(np.ones(1), np.zeros(10))
+    r = paired_difference(np.arange(40.0), np.zeros(40), block=30)     # fewer than 2 blocks
+    assert r["mean"] == pytest.approx(19.5) and r["frames"] == 40
+    assert np.isnan(r["low"]) and np.isnan(r["high"])
 
 
 def test_paired_difference_skips_unscored_frames_and_reports_nan_when_none_are_shared():

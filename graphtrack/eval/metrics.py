@@ -89,21 +89,31 @@ def paired_difference(a: np.ndarray, b: np.ndarray, block: int = 30, resamples: 
     """Mean of d_k = a_k - b_k over the frames both score, with a moving-block
     bootstrap confidence interval.
 
-    a, b: per-frame errors of two estimators on the same frames (same units,
-    NaN where a frame is not scored). Tracking errors persist for seconds, so
-    frames are not independent: the bootstrap draws ceil(n / block) blocks of
-    ``block`` consecutive differences (30 frames: 1 s at 30 Hz) with
-    replacement, truncates to n and averages; the interval is the central
-    ``level`` percentile range of ``resamples`` such means (``seed`` fixes the
-    draws). A difference whose interval holds 0 is not decided by the data.
-    Returns {"mean", "low", "high", "frames"} (NaN when no frame is shared).
+    a, b: per-frame errors of two estimators on the same frames (same shape,
+    same units, NaN where a frame is not scored). Tracking errors persist for
+    seconds, so frames are not independent: the bootstrap draws ceil(n /
+    block) blocks of ``block`` consecutive differences (30 frames: 1 s at
+    30 Hz) with replacement, truncates to n and averages; the interval is the
+    central ``level`` percentile range of ``resamples`` such means (``seed``
+    fixes the draws). A difference whose interval holds 0 is not decided by the
+    data. With fewer than two blocks of shared frames (n < 2 block) the
+    blocks cannot show the spread, and the interval is NaN. On strongly
+    persistent errors (errors that last many blocks) the interval is too
+    narrow: read "decided" as somewhat optimistic. Unscored frames are dropped
+    before blocking, so a block may span a gap.
+    Returns {"mean", "low", "high", "frames"} (all NaN when no frame is shared).
     """
-    d = np.asarray(a, dtype=float).ravel() - np.asarray(b, dtype=float).ravel()
+    a = np.asarray(a, dtype=float).ravel()
+    b = np.asarray(b, dtype=float).ravel()
+    if a.shape != b.shape:
+        raise ValueError(f"paired_difference: {len(a)} and {len(b)} frames; the errors must be on the same frames")
+    d = a - b
     d = d[np.isfinite(d)]
-    n = len(d)
+    n, L = len(d), max(int(block), 1)
     if n == 0:
         return {"mean": float("nan"), "low": float("nan"), "high": float("nan"), "frames": 0}
-    L = int(min(max(block, 1), n))
+    if n < 2 * L:
+        return {"mean": float(d.mean()), "low": float("nan"), "high": float("nan"), "frames": int(n)}
     starts = np.random.default_rng(seed).integers(0, n - L + 1, size=(int(resamples), -(-n // L)))
     idx = (starts[:, :, None] + np.arange(L)).reshape(int(resamples), -1)[:, :n]
     means = d[idx].mean(axis=1)
