@@ -72,6 +72,31 @@ def test_shipped_weights_detect_both_edges_on_unseen_frame(detector):
     assert sorted(det2.edge_ids.tolist()) == [0, 1]
 
 
+def test_subpixel_refinement_puts_the_shaft_lines_on_the_true_limbs(detector):
+    # oracle: the limb lines of the simulator's true pose (Chaumette's projection)
+    from graphtrack.detect.learned import LearnedDetector
+    from graphtrack.geometry.lines import line_difference
+    from graphtrack.robot.features import base_features, shaft_lines
+    from graphtrack.sim.simulate import Simulation
+
+    sim = Simulation("structured", 10, seed=4242, size=(540, 960))
+    coarse = LearnedDetector(subpixel=False)
+    err = {"refined": [], "coarse": []}
+    for k in (2, 5, 8):
+        raw, _ = sim.render(k)
+        und = sim.camera.undistort(raw)
+        rho, th, _ = shaft_lines(base_features(sim.robot, sim.q_read[k]).transformed(sim.E_t[k]), sim.camera.K)
+        for name, det in (("refined", detector.detect(und, np.stack([rho, th], 1))),
+                          ("coarse", coarse.detect(und, np.stack([rho, th], 1)))):
+            assert len(det.shaft_lines) == 2
+            for (r, t), j in zip(det.shaft_lines, det.edge_ids):
+                dr, dt = line_difference(r, t, rho[j], th[j])
+                err[name].append((abs(dr), abs(dt)))
+    refined, coarse_err = np.array(err["refined"]), np.array(err["coarse"])
+    assert np.median(refined[:, 0]) < 0.3 and np.median(refined[:, 1]) < 1e-3
+    assert np.median(refined[:, 0]) < 0.5 * np.median(coarse_err[:, 0])
+
+
 @pytest.mark.parametrize("kind", ["black", "white", "tiny", "grey2d"])
 def test_degenerate_frames(detector, kind):
     img = {"black": np.zeros((540, 960, 3), np.uint8), "white": np.full((540, 960, 3), 255, np.uint8),

@@ -25,7 +25,14 @@ predicts the same two outputs at camera rate:
    index it at full resolution;
 4. the shaft edges come from the shared association
    (:func:`graphtrack.detect.association.associate`) and the markers from the
-   shared colour detector (:func:`graphtrack.detect.markers.detect_markers`).
+   shared colour detector (:func:`graphtrack.detect.markers.detect_markers`);
+5. each associated shaft segment is moved onto the image's edge at full
+   resolution (:mod:`graphtrack.detect.subpixel`; ``subpixel=False`` keeps
+   the heatmap's segments): the 1/4-scale heatmap places an edge to a pixel
+   or two, the image's gradient to a fraction of one. On two tuning
+   recordings (100 frames each, gated by the true lines) the shaft lines'
+   median offset fell from 1.04 to 0.03 px (structured) and from 0.67 to
+   0.13 px (tissue), for ~2 ms per frame. H is left as the net made it.
 
 Weights: ``graphtrack/data/learned_detector.pt`` (shipped), or ``weights=FILE``
 (from ``graphtrack train``), loaded with ``torch.load(weights_only=True)``; a
@@ -47,6 +54,7 @@ import numpy as np
 from graphtrack.detect.association import AssociationConfig, associate
 from graphtrack.detect.base import Detection
 from graphtrack.detect.markers import MarkerConfig, detect_markers
+from graphtrack.detect.subpixel import SubpixelConfig, refine_segments
 from graphtrack.errors import InputError
 from graphtrack.geometry.lines import line_through
 
@@ -234,7 +242,7 @@ class LearnedDetector:
     def __init__(self, weights: str | Path | None = None, scale: float = 0.25, markers: bool = True,
                  extract: ExtractConfig | None = None, association: AssociationConfig | None = None,
                  marker_config: MarkerConfig | None = None, min_contrast: float = 2.0,
-                 threads: int | None = None):
+                 threads: int | None = None, subpixel: bool | SubpixelConfig = True):
         import torch
 
         self.net = load_weights(weights)
@@ -244,6 +252,7 @@ class LearnedDetector:
         self.association = association or AssociationConfig()
         self.marker_config = marker_config
         self.min_contrast = float(min_contrast)
+        self.subpixel = subpixel if isinstance(subpixel, SubpixelConfig) else (SubpixelConfig() if subpixel else None)
         if threads is not None:
             torch.set_num_threads(int(threads))
         self._torch = torch
@@ -303,5 +312,9 @@ class LearnedDetector:
             det.shaft_segments = assoc.segments
             det.shaft_lines = assoc.lines
             det.edge_ids = assoc.edge_ids
+            if self.subpixel is not None and len(assoc.segments):
+                det.shaft_segments = refine_segments(img, assoc.segments, self.subpixel)
+                rho, theta = line_through(det.shaft_segments[:, :2], det.shaft_segments[:, 2:])
+                det.shaft_lines = np.stack([rho, theta], 1)
         det.ms = (time.perf_counter() - t0) * 1e3
         return det

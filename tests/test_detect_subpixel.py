@@ -1,0 +1,86 @@
+"""Sub-pixel edge refinement against edges rendered from a known line."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from graphtrack.detect.subpixel import SubpixelConfig, refine_segment, refine_segments, edge_gradient
+from graphtrack.geometry.lines import line_difference, line_through
+
+
+def render_edge(rho: float, theta: float, shape=(200, 300), inside=40.0, outside=190.0, blur=0.8,
+                ss: int = 8) -> np.ndarray:
+    """Grey image: ``inside`` where cos t x + sin t y < rho, ``outside`` beyond, each
+    pixel the mean of ss x ss sub-samples of its unit square (pixel centres at
+    integers), then a Gaussian blur of ``blur`` px (a camera's point spread)."""
+    h, w = shape
+    o = (np.arange(ss) + 0.5) / ss - 0.5
+    ys, xs = np.mgrid[0:h, 0:w].astype(float)
+    cover = np.zeros(shape)
+    for dy in o:
+        for dx in o:
+            cover += (np.cos(theta) * (xs + dx) + np.sin(theta) * (ys + dy) < rho)
+    img = outside + (inside - outside) * cover / ss ** 2
+    img = cv2.GaussianBlur(img.astype(np.float32), (0, 0), blur)
+    return np.clip(np.round(img), 0, 255).astype(np.uint8)
+
+
+def _segment_on(rho, theta, s0, s1, shift=0.0, turn=0.0):
+    """Endpoints at arc lengths s0, s1 along the line (rho + shift, theta + turn)."""
+    t = theta + turn
+    n, d = np.array([np.cos(t), np.sin(t)]), np.array([-np.sin(t), np.cos(t)])
+    p0 = (rho + shift) * n
+    return np.concatenate([p0 + s0 * d, p0 + s1 * d])
+
+
+@pytest.mark.parametrize("dark_inside", [True, False])
+def test_refined_segment_lies_on_the_rendered_edge(dark_inside):
+    rho, theta = 150.0, 0.35
+    img = render_edge(rho, theta, inside=40 if dark_inside else 190, outside=190 if dark_inside else 40)
+    seg = _segment_on(rho, theta, -60.0, 90.0, shift=1.6, turn=0.008)     # a 1/4-scale detection's error
+    gx, gy = edge_gradient(img, (0, 0, img.shape[1], img.shape[0]), 1.0)
+    out = refine_segment(gx, gy, seg)
+    assert out is not None
+    r, t = line_through(out[:2][None], out[2:][None])
+    dr, dt = line_difference(r[0], t[0], rho, theta)
+    assert abs(dr) < 0.05 and abs(dt) < 5e-4
+    # the refined endpoints are the detected ones moved onto the edge, not along it
+    for k in (0, 2):
+        along = np.array([-np.sin(theta), np.cos(theta)])
+        assert abs(along @ (out[k:k + 2] - seg[k:k + 2])) < 0.1
+
+
+def test_refine_segments_works_in_a_box_and_keeps_what_the_image_does_not_support():
+    rho, theta = 150.0, 0.35
+    img = cv2.cvtColor(render_edge(rho, theta), cv2.COLOR_GRAY2BGR)
+    good = _segment_on(rho, theta, -60.0, 90.0, shift=-1.2)
+    far = _segment_on(rho + 40.0, theta, -60.0, 90.0)            # no edge within the search window
+    nan = np.full(4, np.nan)
+    out = refine_segments(img, np.stack([good, far, nan]))
+    r, t = line_through(out[:1, :2], out[:1, 2:])
+    assert abs(line_difference(r[0], t[0], rho, theta)[0]) < 0.05
+    np.testing.assert_array_equal(out[1], far)
+    assert np.all(np.isnan(out[2]))
+
+
+def test_no_refinement_on_a_flat_image_or_a_short_segment():
+    flat = np.full((120, 160), 100, np.uint8)
+    seg = np.array([20.0, 20.0, 140.0, 100.0])
+    gx, gy = edge_gradient(flat, (0, 0, 160, 120), 1.0)
+    assert refine_segment(gx, gy, seg) is None
+    img = render_edge(80.0, 0.3, shape=(120, 160))
+    gx, gy = edge_gradient(img, (0, 0, 160, 120), 1.0)
+    assert refine_segment(gx, gy, _segment_on(80.0, 0.3, 0.0, 20.0)) is None     # under 2 x 6 + 8 x 4 px
+
+
+def test_a_parallel_edge_outside_the_search_window_does_not_pull():
+    rho, theta = 150.0, 0.35
+    a = render_edge(rho, theta).astype(float)
+    stripe = render_edge(rho - 8.0, theta, inside=0, outside=60).astype(float)   # a specular stripe 8 px inside
+    img = np.clip(a + 60 - stripe, 0, 255).astype(np.uint8)
+    gx, gy = edge_gradient(img, (0, 0, img.shape[1], img.shape[0]), 1.0)
+    out = refine_segment(gx, gy, _segment_on(rho, theta, -60.0, 90.0, shift=-1.5),
+                         config=SubpixelConfig(search=3.0))
+    r, t = line_through(out[:2][None], out[2:][None])
+    assert abs(line_difference(r[0], t[0], rho, theta)[0]) < 0.1
