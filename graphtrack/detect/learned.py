@@ -313,8 +313,12 @@ class LearnedDetector:
             det.shaft_lines = assoc.lines
             det.edge_ids = assoc.edge_ids
             if self.subpixel is not None and len(assoc.segments):
-                det.shaft_segments = refine_segments(img, assoc.segments, self.subpixel)
-                rho, theta = line_through(det.shaft_segments[:, :2], det.shaft_segments[:, 2:])
-                det.shaft_lines = np.stack([rho, theta], 1)
+                refined = refine_segments(img, assoc.segments, self.subpixel)
+                moved = np.all(np.isfinite(refined), axis=1) & np.any(refined != assoc.segments, axis=1)
+                if moved.any():
+                    rho, theta = line_through(refined[moved, :2], refined[moved, 2:])
+                    det.shaft_segments = refined
+                    det.shaft_lines = assoc.lines.copy()
+                    det.shaft_lines[moved] = np.stack([rho, theta], 1)
         det.ms = (time.perf_counter() - t0) * 1e3
         return det
