@@ -93,7 +93,7 @@ def test_subpixel_refinement_puts_the_shaft_lines_on_the_true_limbs(detector):
                 dr, dt = line_difference(r, t, rho[j], th[j])
                 err[name].append((abs(dr), abs(dt)))
     refined, coarse_err = np.array(err["refined"]), np.array(err["coarse"])
-    assert np.median(refined[:, 0]) < 0.3 and np.median(refined[:, 1]) < 1e-3
+    assert refined[:, 0].max() < 0.3 and refined[:, 1].max() < 1e-3
     assert np.median(refined[:, 0]) < 0.5 * np.median(coarse_err[:, 0])
 
 

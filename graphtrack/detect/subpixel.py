@@ -22,6 +22,16 @@ the image, so each associated segment is moved onto the image's edge:
    ``min_fraction`` of the rows (and ``min_samples``); the refined segment is
    e^a, e^b projected on it. Otherwise the segment is kept as detected.
 
+A second edge inside the window (the black border an undistortion leaves, a
+stripe, a tissue fold) makes a row ambiguous, and an edge with many such rows
+is kept as detected (:func:`fit_edge`); with the defaults this holds for a
+black border 2.5 px outside the edge and for a stronger step or a bright
+stripe 4 px away (``tests/test_detect_subpixel.py``). Closer parallel edges
+merge under the camera's and the gradient's blur into one peak and the
+refined line follows the stronger (a step 3.5 px outside, 2.5 times the
+edge's contrast, pulled it 3.4 px): no gradient-peak locator tells them
+apart, and the learned detector's 1-2 px cannot either.
+
 Coordinates are undistorted full-resolution pixels (pixel centres at
 integers, as everywhere in graphtrack).
 """
@@ -44,9 +54,13 @@ class SubpixelConfig:
     end_margin: float = 6.0    #: px left out at each end
     blur: float = 1.0          #: Gaussian sigma before the gradient
     min_strength: float = 0.3  #: a row's peak vs the median peak
+    min_gradient: float = 2.0  #: grey levels / px: the rows' median peak must reach it
     inlier: float = 1.0        #: px, TLS inlier band
     min_fraction: float = 0.5  #: rows that must support the refined line
     min_samples: int = 8
+    rival: float = 0.3         #: a second |gradient| peak this strong (vs the row's) ...
+    rival_gap: float = 1.5     #: ... this far (px) from it makes the row ambiguous
+    max_ambiguous: float = 0.2  #: fraction of ambiguous rows that rejects the edge
 
 
 def edge_gradient(gray: np.ndarray, box: tuple[int, int, int, int], blur: float) -> tuple[np.ndarray, np.ndarray]:
@@ -61,11 +75,32 @@ def edge_gradient(gray: np.ndarray, box: tuple[int, int, int, int], blur: float)
     return gx, gy
 
 
-def refine_segment(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0.0, 0.0),
-                   config: SubpixelConfig | None = None) -> np.ndarray | None:
-    """The segment (x1, y1, x2, y2) moved onto the image edge (module doc), or
-    None when the edge does not support a refined line. gx, gy: the gradient of
-    a box whose top-left pixel is ``origin`` = (x0, y0) in image pixels."""
+@dataclass
+class EdgeProfiles:
+    """The signed normal gradient across the segment a -> b: g[i, j] =
+    grad(p_i + t_j n) . n at p_i = a + s_i d (grey levels / px), n pointing
+    ``toward`` the shaft when given."""
+
+    a: np.ndarray
+    b: np.ndarray
+    d: np.ndarray
+    n: np.ndarray
+    s: np.ndarray
+    t: np.ndarray
+    g: np.ndarray
+
+    def polarity_votes(self) -> float:
+        """Sum over rows of the sign of each row's strongest sample."""
+        strongest = self.g[np.arange(len(self.s)), np.argmax(np.abs(self.g), axis=1)]
+        return float(np.sum(np.sign(strongest)))
+
+
+def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0.0, 0.0),
+                  config: SubpixelConfig | None = None, toward=None) -> EdgeProfiles | None:
+    """Sample the normal gradient across ``segment`` (module doc, step 2); None
+    for a segment too short for ``min_samples`` rows. gx, gy: the gradient of a
+    box whose top-left pixel is ``origin`` = (x0, y0) in image pixels; toward: a
+    point on the normal's side (the other edge of the shaft), or None."""
     cfg = config or SubpixelConfig()
     seg = np.asarray(segment, float).ravel()
     a, b = seg[:2], seg[2:4]
@@ -74,42 +109,77 @@ def refine_segment(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(
         return None
     d = (b - a) / length
     n = np.array([-d[1], d[0]])
+    if toward is not None and n @ (np.asarray(toward, float) - a) < 0:
+        n = -n
     s = np.arange(cfg.end_margin, length - cfg.end_margin + 1e-9, cfg.step)
     t = np.arange(-cfg.search, cfg.search + 1e-9, 0.5)
     Q = a + s[:, None, None] * d + t[None, :, None] * n - np.asarray(origin, float)   # (S, T, 2) box px
     mx, my = Q[..., 0].astype(np.float32), Q[..., 1].astype(np.float32)
     g = (cv2.remap(gx, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * n[0]
          + cv2.remap(gy, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * n[1])
-    strongest = g[np.arange(len(s)), np.argmax(np.abs(g), axis=1)]
-    g = g * (1.0 if np.sum(np.sign(strongest)) >= 0 else -1.0)       # the edge's polarity, positive
+    return EdgeProfiles(a, b, d, n, s, t, g)
+
+
+def fit_edge(p: EdgeProfiles, polarity: float, config: SubpixelConfig | None = None) -> np.ndarray | None:
+    """Steps 3-4 of the module doc for the given polarity (+1: the gradient
+    points along p.n): the refined segment, or None. A row is ambiguous when a
+    second local peak of |g|, of either polarity, of at least ``rival`` times
+    its peak lies ``rival_gap`` px or more from it (a black undistortion
+    border, a stripe or a second step inside the window: which of them is the
+    silhouette the gradient cannot tell); more than ``max_ambiguous`` of such
+    rows reject the edge, which then stays as detected.
+    The peak is the vertex of a least-squares parabola through the 5 samples
+    around the row's maximum (3 samples leave a bias of up to 0.13 px that
+    depends on where the edge falls in the pixel grid)."""
+    cfg = config or SubpixelConfig()
+    g = p.g * (1.0 if polarity >= 0 else -1.0)
+    S, T = g.shape
     k = np.argmax(g, axis=1)
-    peak = g[np.arange(len(s)), k]
-    inside = (k > 0) & (k < len(t) - 1) & (peak > 0)
-    if not inside.any():
+    peak = g[np.arange(S), k]
+    inside = (k >= 2) & (k <= T - 3) & (peak > 0)
+    if inside.sum() < cfg.min_samples or np.median(peak[inside]) < cfg.min_gradient:
         return None
     rows = np.flatnonzero(inside & (peak >= cfg.min_strength * np.median(peak[inside])))
     if len(rows) < cfg.min_samples:
         return None
+    G = g[rows]
+    A = np.abs(G)                       # a rival may have either polarity
+    local = np.zeros_like(A, dtype=bool)
+    local[:, 1:-1] = (A[:, 1:-1] >= A[:, :-2]) & (A[:, 1:-1] >= A[:, 2:])
+    far = np.abs(np.arange(T)[None, :] - k[rows, None]) * 0.5 >= cfg.rival_gap
+    rival = np.any(local & far & (A >= cfg.rival * peak[rows, None]), axis=1)
+    if rival.mean() > cfg.max_ambiguous:
+        return None
     kk = k[rows]
-    gm, g0, gp = g[rows, kk - 1], g[rows, kk], g[rows, kk + 1]
-    curv = gm - 2.0 * g0 + gp
-    delta = np.where(curv < 0, 0.5 * (gm - gp) / np.where(curv < 0, curv, -1.0), 0.0)   # in samples
-    off = t[kk] + 0.5 * np.clip(delta, -0.5, 0.5)
-    pts = a + s[rows, None] * d + off[:, None] * n
+    w = G[np.arange(len(rows))[:, None], kk[:, None] + np.arange(-2, 3)[None, :]]     # (R, 5)
+    curv = (2 * w[:, 0] - w[:, 1] - 2 * w[:, 2] - w[:, 3] + 2 * w[:, 4]) / 14.0     # x^2 coefficient
+    slope = (-2 * w[:, 0] - w[:, 1] + w[:, 3] + 2 * w[:, 4]) / 10.0                  # x coefficient
+    delta = np.where(curv < 0, -slope / (2.0 * np.where(curv < 0, curv, -1.0)), 0.0)  # in samples
+    off = p.t[kk] + 0.5 * np.clip(delta, -1.0, 1.0)
+    pts = p.a + p.s[rows, None] * p.d + off[:, None] * p.n
     line = fit_line_tls(pts)
     for _ in range(2):
         r = np.abs(np.cos(line[1]) * pts[:, 0] + np.sin(line[1]) * pts[:, 1] - line[0])
         keep = r <= cfg.inlier
-        if keep.sum() < max(cfg.min_samples, cfg.min_fraction * len(s)):
+        if keep.sum() < max(cfg.min_samples, cfg.min_fraction * S):
             return None
         line = fit_line_tls(pts[keep])
-    c, sn = np.cos(line[1]), np.sin(line[1])
-    nl = np.array([c, sn])
+    nl = np.array([np.cos(line[1]), np.sin(line[1])])
+    a, b = p.a, p.b
+    return np.concatenate([a - (nl @ a - line[0]) * nl, b - (nl @ b - line[0]) * nl])
 
-    def onto(p):
-        return p - (nl @ p - line[0]) * nl
 
-    return np.concatenate([onto(a), onto(b)])
+def refine_segment(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0.0, 0.0),
+                   config: SubpixelConfig | None = None, polarity: float | None = None,
+                   toward=None) -> np.ndarray | None:
+    """The segment (x1, y1, x2, y2) moved onto the image edge (module doc), or
+    None when the edge does not support a refined line. polarity: the sign of
+    the gradient along the normal (pointing ``toward``, when given); None: the
+    majority of the segment's own rows."""
+    p = edge_profiles(gx, gy, segment, origin, config, toward)
+    if p is None:
+        return None
+    return fit_edge(p, p.polarity_votes() if polarity is None else polarity, config)
 
 
 def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelConfig | None = None) -> np.ndarray:
@@ -132,8 +202,19 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
     if x1 - x0 < 3 or y1 - y0 < 3:
         return segs
     gx, gy = edge_gradient(gray, (x0, y0, x1, y1), cfg.blur)
-    for i in np.flatnonzero(ok):
-        r = refine_segment(gx, gy, segs[i], (x0, y0), cfg)
+    idx = np.flatnonzero(ok)
+    mid = (segs[:, :2] + segs[:, 2:]) / 2
+    # the shaft's two edges: normals point into the shaft (toward the other edge's
+    # midpoint), and one polarity, voted by both, serves both edges
+    toward = {int(i): mid[int(idx[1 - j])] for j, i in enumerate(idx)} if len(idx) == 2 else {}
+    prof = {int(i): edge_profiles(gx, gy, segs[i], (x0, y0), cfg, toward.get(int(i))) for i in idx}
+    joint = None
+    if len(toward) == 2 and all(p is not None for p in prof.values()):
+        joint = 1.0 if sum(p.polarity_votes() for p in prof.values()) >= 0 else -1.0
+    for i, p in prof.items():
+        if p is None:
+            continue
+        r = fit_edge(p, p.polarity_votes() if joint is None else joint, cfg)
         if r is not None:
             segs[i] = r
     return segs
