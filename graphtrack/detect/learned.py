@@ -32,7 +32,7 @@ predicts the same two outputs at camera rate:
    or two, the image's gradient to a fraction of one. On two tuning
    recordings (100 frames each, gated by the true lines) the shaft lines'
    median offset fell from 1.04 to 0.03 px (structured) and from 0.67 to
-   0.13 px (tissue), for ~2 ms per frame. H is left as the net made it.
+   0.14 px (tissue), for ~2 ms per frame. H is left as the net made it.
 
 Weights: ``graphtrack/data/learned_detector.pt`` (shipped), or ``weights=FILE``
 (from ``graphtrack train``), loaded with ``torch.load(weights_only=True)``; a
