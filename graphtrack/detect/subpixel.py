@@ -13,10 +13,12 @@ the image, so each associated segment is moved onto the image's edge:
    image border are not edge), the signed normal gradient g(p + t n) . n is
    sampled (bilinear) for t in [-search, search] every 0.5 px;
 3. the edge's polarity (dark shaft on a lighter background or the reverse) is
-   the majority sign of the rows' strongest samples; each row's peak of the
-   gradient of that polarity, if inside the window and at least
-   ``min_strength`` of the rows' median peak, is located to sub-pixel by a
-   parabola through it and its neighbours;
+   the majority sign of the rows' strongest samples (the shaft's two edges,
+   their normals pointing into the shaft, share one, voted by both); each
+   row's peak of the gradient of that polarity, if inside the window and at
+   least ``min_strength`` of the rows' median peak (which must reach
+   ``min_gradient`` grey levels per px), is located to sub-pixel by the vertex
+   of a least-squares parabola through the 5 samples around it;
 4. a total-least-squares line through the peaks, refitted on those within
    ``inlier`` px of it, is the refined edge when it keeps at least
    ``min_fraction`` of the rows (and ``min_samples``); the refined segment is
