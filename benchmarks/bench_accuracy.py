@@ -30,6 +30,7 @@ endpoints, so its row equals ``endpoints-polar``'s.
 from __future__ import annotations
 
 import csv
+import functools
 import os
 import warnings
 from pathlib import Path
@@ -162,6 +163,7 @@ def _paired_tables(out: Path, recordings: dict, states: dict, shared: list) -> d
         refs[s] = {"labels": read_labels(Path(p) / "labels.csv"),
                    "truth": {int(f): tip for f, tip in zip(t["frame"], t["tip"])}}
 
+    @functools.lru_cache(maxsize=None)   # the smoother's errors serve both tables: read each run once
     def per_frame(s, est, m, ref):   # per labelled frame, the mean error over the cell's seeds
         runs = states.get((s, est, m), {})
         frames = sorted(refs[s][ref])

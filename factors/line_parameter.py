@@ -74,9 +74,9 @@ class LineParameterError(PoseBiasErrorFunction):
         self.M = line_matrix(np.asarray(K, float))
         self.sig = np.array([sigma_rho, sigma_theta], float)
         self.limb = -1
-        self.bias = bool(bias)
+        self.on_bias = bool(bias)    # the factor is on (E, b) (PoseBiasErrorFunction)
         self.b = np.zeros(BIAS_DIM)     # the bias the differences are taken with
-        if self.bias:
+        if self.on_bias:
             n = np.array([np.cos(self.theta_d), np.sin(self.theta_d)])
             c = np.asarray(K, float)[:2, 2]
             x0 = c - (n @ c - self.rho_d) * n                 # foot of the principal point
@@ -89,7 +89,7 @@ class LineParameterError(PoseBiasErrorFunction):
 
     def biased(self, L: np.ndarray) -> np.ndarray:
         """L' (2, 3) of both limbs of L (2, 3) under the bias self.b (L itself without the state)."""
-        if not self.bias:
+        if not self.on_bias:
             return L
         s = np.hypot(L[:, 0], L[:, 1])[:, None]
         ok = np.array([limb_bias(self.b, i) for i in range(2)])        # (2, 2): o_i, slope_i
@@ -114,7 +114,7 @@ class LineParameterError(PoseBiasErrorFunction):
     def evaluate(self, E: np.ndarray, jacobian: bool = True, b: np.ndarray | None = None):
         """Unwhitened residual (d_rho px, d_theta rad) and its Jacobian: (2, 6) d/dxi, or
         with the bias state (b given; required then) (2, 10) [d/dxi, d/db]."""
-        if self.bias != (b is not None):
+        if self.on_bias != (b is not None):
             raise ValueError("LineParameterError: b must be given exactly when the factor is on the edge-bias state")
         ncols = 6 if b is None else 6 + BIAS_DIM
         if b is not None:
@@ -147,9 +147,6 @@ class LineParameterError(PoseBiasErrorFunction):
         J = np.hstack([dr_dLb @ dLb_dL @ dL[i], dr_dLb @ dLb_dok @ dok_db])
         return r, J
 
-    @property
-    def on_bias(self) -> bool:
-        return self.bias
 
 
 def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,

@@ -73,7 +73,7 @@ class BatchEstimator:
         self.relative_tolerance = float(relative_tolerance)
         self.covariance = bool(covariance)
         self.fps = float(fps)
-        self.bias = self.fopts.uses_edge_bias(observation)
+        self.bias = bool(self.fopts.edge_bias)   # pixel sets and polar lines alike
         self.every = self.fopts.edge_bias_period if self.bias else 1
         self.frames: list[tuple[np.ndarray, object]] = []
         self.stamps: list[float] = []

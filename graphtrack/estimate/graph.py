@@ -210,12 +210,6 @@ class FactorOptions:
     def kernel(self):
         return make_kernel(self.robust, self.robust_k)
 
-    def uses_edge_bias(self, model: str | None) -> bool:
-        """Whether frames carry the edge-bias state: ``edge_bias``, whatever the
-        observation ``model`` (the pixel sets and the polar models' detected lines
-        are both on it; the argument stays for callers that ask per model)."""
-        return bool(self.edge_bias)
-
     @property
     def edge_bias_period(self) -> int:
         """Frames per edge-bias vector: frame k's is vector k // period."""
@@ -270,7 +264,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     F = base_features(robot, np.asarray(q, float))
     kern = opts.kernel
     x = key(k) if pose_key is None else pose_key
-    b = bias_key(k // opts.edge_bias_period) if opts.uses_edge_bias(model) else None
+    b = bias_key(k // opts.edge_bias_period) if opts.edge_bias else None
     model = observation.model or model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])

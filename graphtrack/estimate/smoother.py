@@ -139,7 +139,7 @@ class FixedLagSmootherEstimator:
         self.converge_tol = float(converge_tol)
         self.fps = float(fps)
         self.covariance = bool(covariance)
-        self.bias = self.fopts.uses_edge_bias(observation)
+        self.bias = bool(self.fopts.edge_bias)   # pixel sets and polar lines alike
         self.bias_stamp = None        # stamp of the frame that opened the newest bias vector
         if self.kind == "isam2":
             p = gtsam.ISAM2Params()
