@@ -103,7 +103,9 @@ class ParticleFilter:
                  gate_scale: float = 1.0,
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
-                 marker_huber_k: float = om.MARKER_HUBER_K):
+                 marker_huber_k: float = om.MARKER_HUBER_K,
+                 search: bool = True, search_std_b: float = 6e-3, search_std_w: float = 0.05,
+                 search_hypotheses: int = 2048, reinit_gap: int = 30):
         if observation not in om.OBSERVATION_MODELS:
             raise ValueError(f"unknown observation model {observation!r}")
         if int(particles) < 1:
@@ -133,6 +135,17 @@ class ParticleFilter:
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
         self._geometry_cache = None
+        self.search_std = np.array([search_std_b] * 3 + [search_std_w] * 3, dtype=float)
+        self.search = None
+        if search:
+            from graphtrack.estimate.reinit import SearchInit
+            self.search = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, gate_scale, markers,
+                                     seed=seed, n=search_hypotheses, gamma_rho=gamma_rho,
+                                     gamma_theta=gamma_theta, use_edge_ids=use_edge_ids,
+                                     pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
+                                     marker_gamma=marker_gamma, marker_gate=marker_gate,
+                                     pixel_effective_count=pixel_effective_count, marker_loss=marker_loss,
+                                     marker_sigma=marker_sigma, marker_huber_k=marker_huber_k)
         self.reset()
 
     # -- state ------------------------------------------------------------------------
@@ -223,6 +236,9 @@ class ParticleFilter:
         h = self._project(q)
         informative = observation is not None and (
             observation.has_shaft or (self.use_markers and len(observation.markers)))
+        if self.search is not None and self.search.propose(q, observation, self.E, informative) is not None:
+            self._redraw(self.search.result)  # start-up, long gap or divergence: global search
+            h = self._project(q)
         if informative:
             self.logw = normalize_log_weights(self.logw + self._loglik(h, observation))
         w = np.exp(self.logw)
@@ -238,6 +254,17 @@ class ParticleFilter:
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est
+
+    def _redraw(self, res) -> None:
+        """Redraw the cloud from a search result (:mod:`graphtrack.estimate.reinit`):
+        x_n ~ N(res.x, C), C the search's elite covariance with per-axis stds clipped
+        to [init_std / 8, init_std]."""
+        sd = np.sqrt(np.clip(np.diag(res.cov), 0.0, None))
+        scale = np.clip(sd, self.init_std / 8, self.init_std) / np.maximum(sd, 1e-300)
+        C = scale[:, None] * res.cov * scale[None, :] + np.diag((1e-3 * self.init_std) ** 2)
+        L = np.linalg.cholesky(0.5 * (C + C.T))
+        self.x = res.x + self.rng.standard_normal((self.N, 6)) @ L.T
+        self.logw = np.full(self.N, -np.log(self.N))
 
     def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
         """Systematic resampling, then roughening with (roughening^2) Sigma."""

@@ -119,7 +119,9 @@ class FixedLagSmootherEstimator:
                  relinearize_threshold: float = 1e-2, settled_relinearize_threshold: float = 2e-2,
                  settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
-                 start_up_wait: int = 30, **options):
+                 start_up_wait: int = 30, search: bool = True, search_std_b: float = 6e-3,
+                 search_std_w: float = 0.05, reinit_gap: int = 30, jump_sigma_b: float = 5e-3,
+                 jump_sigma_w: float = 0.035, **options):
         import gtsam
 
         self.gtsam = gtsam
@@ -172,6 +174,13 @@ class FixedLagSmootherEstimator:
         self.t0 = None
         self.last_stamp = None
         self.timings_ms: list[float] = []
+        self.reinit = None
+        if search:
+            from graphtrack.estimate.reinit import SearchInit
+            self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
+                                     markers)
+            self.start_up_wait = 0    # the search associates markers per hypothesis
+        self.jump_noise = gaussian_bw(self.E0, jump_sigma_b, jump_sigma_w)
 
     # -- helpers ---------------------------------------------------------------------
     def _stamp(self, frame: Frame) -> float:
@@ -253,14 +262,23 @@ class FixedLagSmootherEstimator:
         # the window timestamp of this frame's variables: with the edge-bias state the
         # bias block's first frame, so that the block's variables leave together
         stamp = self.bias_stamp if self.bias else t
-        if k == 0:
-            graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
-        else:
-            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
-        self.prev_key = x
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
                                              self.fopts, self.model, self.E0, pose_key=x,
                                              line_bias=self.settled)
+        jump = False
+        if self.reinit is not None:   # start-up / after a long gap: initial value from the search
+            found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers))
+            if found is not None:
+                jump = self.started   # re-initialisation: a loose motion factor lets x_t move there
+                self.last = gtsam.Pose3(found)
+        if k == 0:
+            graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
+        else:
+            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(),
+                                               self.jump_noise if jump else self.motion_noise))
+        self.prev_key = x
+        if jump:
+            self.last = self._start_up(k, shaft, markers, x)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen
