@@ -37,6 +37,8 @@ from graphtrack.errors import FrameError, InputError
 
 IMAGE_TOPIC = "/stereo/left/image"
 COMPRESSED_TOPIC = "/stereo/left/image/compressed"
+RIGHT_IMAGE_TOPIC = "/stereo/right/image"
+RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 JOINT_TYPE = "sensor_msgs/msg/JointState"

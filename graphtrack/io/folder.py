@@ -153,14 +153,16 @@ def write_folder(out_dir: str | Path, frames: Iterable, video: bool = False, fps
     """Write the plain-folder form, streaming: frames/NNNNNN.<ext> (or video.mp4) + joints.csv.
 
     ``frames``: objects with stamp (s), image (H x W x 3 uint8 BGR), joints (n,)
-    and jaw (rad or NaN). joints.csv is flushed after every row. ``video=True``
-    writes an mp4v-coded video.mp4 (lossy) instead of image files.
+    and jaw (rad or NaN); an ``image_right`` that is not None goes to
+    frames_right/ under the same name. joints.csv is flushed after every row.
+    ``video=True`` writes an mp4v-coded video.mp4 (lossy) instead of the left image files.
     Returns the number of frames written.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if not video:
         (out / "frames").mkdir(exist_ok=True)
+    right_dir = None
     writer, n, width = None, 0, None
     with (out / "joints.csv").open("w", newline="") as f:
         try:
@@ -181,6 +183,13 @@ def write_folder(out_dir: str | Path, frames: Iterable, video: bool = False, fps
                     writer.write(img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
                 elif not cv2.imwrite(str(out / "frames" / f"{n:06d}.{image_ext}"), img):
                     raise ValueError(f"frame {n}: cv2.imwrite failed")
+                right = getattr(fr, "image_right", None)
+                if right is not None:
+                    if right_dir is None:
+                        right_dir = out / "frames_right"
+                        right_dir.mkdir(exist_ok=True)
+                    if not cv2.imwrite(str(right_dir / f"{n:06d}.{image_ext}"), np.ascontiguousarray(right)):
+                        raise ValueError(f"frame {n}: cv2.imwrite (right) failed")
                 jaw = float(getattr(fr, "jaw", math.nan))
                 f.write(",".join([str(n), repr(float(fr.stamp))] + [repr(float(v)) for v in q]
                                  + [repr(jaw) if math.isfinite(jaw) else "nan"]) + "\n")
