@@ -156,12 +156,14 @@ def lumped_error(robot, E_true: np.ndarray, q_true: np.ndarray, q_read: np.ndarr
 
 
 def excursion(robot, camera, cam_T_base, q: np.ndarray, start: int, ramp: int, hold: int):
-    """Pull the tool out of view and back: q with joint 3 (insertion) retracted by a
-    raised-cosine bump (ramp frames up, ``hold`` frames at depth Delta, ramp down) from
-    ``start``. Delta is the smallest multiple of 5 mm (up to the joint limit) that puts
-    the tip outside the image (or behind the camera) in every held frame.
+    """Pull the tool out of view and back: q plus a raised-cosine bump (``ramp`` frames
+    up, ``hold`` frames at full offset, ``ramp`` down) from ``start`` of the joint offset
+    d = (d1, 0, -r): first a pure retraction r (insertion joint 3, multiples of 5 mm up to
+    the joint limit), else the full retraction plus a yaw swing d1 = +-0.1, +-0.2, ... 0.6
+    rad (within the limits) -- the first d that puts the tip outside the image (or
+    behind the camera) in every held frame.
 
-    Returns (q', Delta m), or (q, None) when no retraction takes the tip out of view.
+    Returns (q', d (3,) [rad, rad, m]), or (q, None) when no such offset is found.
     """
     n = len(q)
     prof = np.zeros(n)
@@ -172,17 +174,26 @@ def excursion(robot, camera, cam_T_base, q: np.ndarray, start: int, ramp: int, h
     down = (k >= ramp + hold) & (k < 2 * ramp + hold)
     prof[down] = 0.5 + 0.5 * np.cos(np.pi * (k[down] - ramp - hold + 1) / ramp)
     held = np.nonzero(prof == 1.0)[0]
-    room = float(np.min(q[held, 2])) - robot.joint_limits[2, 0] if len(held) else 0.0
+    if len(held) == 0:
+        return q, None
+    lim = robot.joint_limits
+    room = float(np.min(q[held, 2])) - lim[2, 0]
+    offsets = [(0.0, r) for r in np.arange(0.01, room + 1e-9, 0.005)]
+    offsets += [(s * a, room) for a in np.arange(0.1, 0.61, 0.1) for s in (1, -1)]
     H, W = camera.height, camera.width
-    for delta in np.arange(0.01, room + 1e-9, 0.005):
+    for d1, r in offsets:
         qq = q[held].copy()
-        qq[:, 2] -= delta
+        qq[:, 0] += d1
+        qq[:, 2] -= r
+        if np.any(qq[:, 0] < lim[0, 0]) or np.any(qq[:, 0] > lim[0, 1]):
+            continue
         L = cam_T_base @ link_transforms(robot, qq)
         tip = transform_points(L[:, robot.tool_tip.link], np.asarray(robot.tool_tip.position))
         uv = camera.project_raw(np.where(tip[:, 2:] > 1e-3, tip, [0, 0, 1.0]))
         inside = (tip[:, 2] > 1e-3) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
         if not inside.any():
             out = q.copy()
-            out[:, 2] -= delta * prof
-            return out, float(delta)
+            out[:, 0] += d1 * prof
+            out[:, 2] -= r * prof
+            return out, np.array([d1, 0.0, r])
     return q, None

@@ -145,8 +145,9 @@ class Simulation:
             if kind == "excursion":
                 q, delta = motion.excursion(self.robot, self.camera, self.E_he, self.q_true, s, x["ramp"], x["hold"])
                 self.q_true = q
-                return {"start": s, "end": s + n, "ramp": x["ramp"], "hold": x["hold"],
-                        "retraction_m": delta, "applied": delta is not None}
+                return {"start": s, "end": s + n, "ramp": x["ramp"], "hold": x["hold"], "applied": delta is not None,
+                        "retraction_m": None if delta is None else float(delta[2]),
+                        "yaw_swing_rad": None if delta is None else float(delta[0])}
         return None
 
     @property
