@@ -22,6 +22,12 @@ Per-frame problems are YIELDED (not raised) as
 - ``joint_count``: the joint reading does not hold the expected number of DH joints;
 - ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf.
 
+Stereo recordings (right images plus K2, D2, R, T): each Frame's ``image_right``
+holds the right image matched by stamp (folder form: the same file name in
+frames_right/); a missing, corrupt or wrongly sized right image gives None and
+is counted in ``rec.right_skips`` (and a line in ``rec.warnings``): that frame is
+left-only. ``rec.labels_right`` holds labels_right.csv.
+
 Truncated ROS 1 bags (index missing or damaged) are read up to the damage:
 all complete frames are yielded, ``rec.truncated`` is True and ``rec.warnings``
 holds a line for the user. See :mod:`graphtrack.io.bag`.
@@ -53,6 +59,7 @@ class Recording:
     path: the sequence folder; calibration: intrinsics (left, optional right);
     handeye: nominal camera-from-base 4x4 (METRES); robot: what the robot loader
     returned for robot.json; labels: {frame: (u, v) px} from labels.csv, or None;
+    labels_right: the same from labels_right.csv (right raw image), or None;
     n_joints: the DH joint count every reading must have (None: not checked);
     source: the BagSource or FolderSource behind the frames.
     """
@@ -65,14 +72,39 @@ class Recording:
     n_joints: int | None
     source: BagSource | FolderSource
     notes: list[str] = field(default_factory=list)
+    labels_right: dict[int, np.ndarray] | None = None
+    right_size_skips: int = 0
 
     def __len__(self) -> int:
         return len(self.source)
 
     @property
     def warnings(self) -> list[str]:
-        """Lines for the user: recording choices made, damage found, messages skipped."""
-        return self.notes + list(self.source.warnings)
+        """Lines for the user: recording choices made, damage found, messages skipped
+        (including, after iterating, the frames whose right image was unusable)."""
+        lines = self.notes + list(self.source.warnings)
+        sk = self.right_skips
+        if sum(sk.values()):
+            lines.append(f"{self.path}: {sum(sk.values())} frames without a usable right image "
+                         f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
+        return lines
+
+    @property
+    def stereo(self) -> bool:
+        """True when the recording has right images and the right camera's calibration."""
+        return self.has_right_images and self.calibration.right is not None
+
+    @property
+    def has_right_images(self) -> bool:
+        src = self.source
+        return (src.right_files is not None) if isinstance(src, FolderSource) else src.right_topic is not None
+
+    @property
+    def right_skips(self) -> dict[str, int]:
+        """Frames yielded so far with image_right None although the recording is stereo:
+        {"missing": no right image within the stamp tolerance / no file, "corrupt": does not
+        decode, "image_size": differs from ImageSize}."""
+        return {**self.source.right_skips, "image_size": self.right_size_skips}
 
     @property
     def kind(self) -> str:
@@ -129,6 +161,9 @@ class Recording:
             elif not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(f.jaw)):
                 yield FrameError(f.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {f.jaw}")
             else:
+                if f.image_right is not None and f.image_right.shape[:2] != (h, w):
+                    f.image_right = None
+                    self.right_size_skips += 1
                 yield f
 
 
@@ -203,7 +238,8 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
     labels = read_labels(path / "labels.csv") if (path / "labels.csv").is_file() else None
+    labels_r = read_labels(path / "labels_right.csv") if (path / "labels_right.csv").is_file() else None
     source, notes = find_source(path, topics)
     handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
     return Recording(path, calibration, handeye, robot, labels, n_joints, source,
-                     notes=notes)
+                     notes=notes, labels_right=labels_r)
