@@ -52,16 +52,21 @@ def tangent_points(p0, d, r, rng, n=8):
     return np.array(out)
 
 
+def random_cylinder(rng, f=(400, 1500), xy=0.05, z=(0.05, 0.3), r=(0.002, 0.01)):
+    """Intrinsics K (focal lengths in f px) and a camera-frame cylinder: p0 (m), unit d, r (m)."""
+    K = np.array([[rng.uniform(*f), 0, rng.uniform(300, 700)],
+                  [0, rng.uniform(*f), rng.uniform(200, 400)], [0, 0, 1]])
+    p0 = np.array([rng.uniform(-xy, xy), rng.uniform(-xy, xy), rng.uniform(*z)])
+    d = rng.normal(size=3)
+    return K, p0, d / np.linalg.norm(d), rng.uniform(*r)
+
+
 def test_limb_lines_against_projectPoints_1000_random_cylinders():
     rng = np.random.default_rng(42)
     checked = 0
     worst = 0.0
     while checked < 1000:
-        K = np.array([[rng.uniform(400, 1500), 0, rng.uniform(300, 700)],
-                      [0, rng.uniform(400, 1500), rng.uniform(200, 400)], [0, 0, 1]])
-        p0 = np.array([rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), rng.uniform(0.05, 0.3)])
-        d = rng.normal(size=3)
-        r = rng.uniform(0.002, 0.01)
+        K, p0, d, r = random_cylinder(rng)
         rho, theta, valid = project_cylinder(p0, d, r, K)
         if not valid:
             continue
@@ -111,12 +116,7 @@ def test_surface_lies_on_one_side_of_each_limb_and_touches_it():
     rng = np.random.default_rng(7)
     checked = 0
     while checked < 200:
-        K = np.array([[rng.uniform(500, 1200), 0, rng.uniform(300, 700)],
-                      [0, rng.uniform(500, 1200), rng.uniform(200, 400)], [0, 0, 1]])
-        p0 = np.array([rng.uniform(-0.04, 0.04), rng.uniform(-0.04, 0.04), rng.uniform(0.08, 0.25)])
-        d = rng.normal(size=3)
-        d /= np.linalg.norm(d)
-        r = rng.uniform(0.002, 0.008)
+        K, p0, d, r = random_cylinder(rng, f=(500, 1200), xy=0.04, z=(0.08, 0.25), r=(0.002, 0.008))
         E = np.eye(4)
         L, _, valid = limb_line_coefficients(E, ShaftAxis.make(p0, d, r), line_matrix(K), False)
         if not valid:
