@@ -19,7 +19,8 @@ import numpy as np
 
 from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.robot.features import base_features, shaft_lines
 

@@ -14,7 +14,7 @@ from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import left_error
 from graphtrack.robot.features import base_features

@@ -4,7 +4,7 @@ import pytest
 
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.particle_filter import STD_COLUMNS, ParticleFilter
 from graphtrack.estimate.pf.synthetic import make_scene, pose_error
 

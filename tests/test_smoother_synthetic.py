@@ -5,7 +5,7 @@ import pytest
 from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import STD_COLUMNS, left_error
 

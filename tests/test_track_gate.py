@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from factors.synthetic import Q0, make_scene
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.track import MAX_GATE_PX, Pipeline, TrackOptions
 

@@ -1,6 +1,6 @@
 """The one streaming interface every estimator implements.
 
-A :class:`Frame` is what a recording yields (raw image + joint readings); the
+A :class:`~graphtrack.io.frame.Frame` is what a recording yields (raw image + joint readings); the
 tracking loop (:mod:`graphtrack.track`) undistorts, detects and builds an
 :class:`~graphtrack.detect.base.Observation`, then asks the estimator for the
 lumped error E_t:
@@ -16,33 +16,11 @@ from typing import Protocol
 
 import numpy as np
 
+from graphtrack.io.frame import Frame
+
 #: trajectory.csv columns of an estimator's uncertainty: the standard deviations of
 #: the LEFT camera-frame correction E = Exp(xi) . E_hat, xi = (b [m], w [rad]).
 STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
-
-
-@dataclass
-class Frame:
-    """One synchronised frame of a recording.
-
-    index: 0-based frame number (bag order); stamp: seconds;
-    image: raw (distorted) left image, H x W x 3 uint8 BGR (None if not decoded);
-    joints: the DH joints' readings q~ (n,) in rad / m; jaw: jaw opening (rad),
-    NaN when the tool has no gripper.
-    """
-
-    index: int
-    stamp: float
-    image: np.ndarray | None
-    joints: np.ndarray
-    jaw: float = float("nan")
-
-    @property
-    def q(self) -> np.ndarray:
-        """The full joint vector the kinematics takes: DH joints, then jaw if finite."""
-        if np.isfinite(self.jaw):
-            return np.concatenate([self.joints, [self.jaw]])
-        return np.asarray(self.joints, dtype=float)
 
 
 def monotone_stamp(stamp, previous: float | None, fps: float) -> float:

@@ -1,7 +1,8 @@
 """The no-correction baseline: E_t = E_0 (handeye.yaml) for every frame."""
 from __future__ import annotations
 
-from graphtrack.estimate.base import Estimate, Frame
+from graphtrack.estimate.base import Estimate
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 
 

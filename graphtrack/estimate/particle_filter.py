@@ -60,7 +60,8 @@ from __future__ import annotations
 import numpy as np
 
 from graphtrack.estimate import observation_models as om
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
+from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,

@@ -83,7 +83,8 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame, monotone_stamp
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.context import TrackingContext
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
                                        key, left_from_right_cov, split_options)

@@ -296,7 +296,7 @@ class BagSource:
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
         """
-        from graphtrack.estimate.base import Frame
+        from graphtrack.io.frame import Frame
 
         joints, jaw = self.joint_tables()
         index = -1

@@ -139,7 +139,7 @@ class FolderSource:
 
     def frames(self, start: int = 0):
         """Yield, per row of joints.csv from ``start`` on, a Frame (unchecked) or a FrameError."""
-        from graphtrack.estimate.base import Frame
+        from graphtrack.io.frame import Frame
 
         for k, img, err in self._images(start):
             if err is not None:
