@@ -25,7 +25,7 @@ from factors.synthetic import make_scene, sequence  # noqa: E402
 from graphtrack.detect.base import Observation  # noqa: E402
 from graphtrack.io.frame import Frame  # noqa: E402
 from graphtrack.estimate.batch import BatchEstimator  # noqa: E402
-from graphtrack.estimate.context import TrackingContext  # noqa: E402
+from graphtrack.io.context import TrackingContext  # noqa: E402
 from graphtrack.estimate.graph import left_error  # noqa: E402
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator  # noqa: E402
 

@@ -21,7 +21,7 @@ from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.io.frame import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.robot.features import base_features, shaft_lines
 
 STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")

@@ -81,7 +81,7 @@ def test_no_edge_bias_reaches_the_estimator(rec, tmp_path, command, estimator):
     by default it is on, for the pixel models and the polar models alike."""
     from graphtrack.cli import build_parser
     from graphtrack.commands.track import options_from_args
-    from graphtrack.estimate.context import TrackingContext
+    from graphtrack.io.context import TrackingContext
     from graphtrack.estimate import make_estimator
     from graphtrack.io.recording import open_recording
 

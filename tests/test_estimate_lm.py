@@ -6,7 +6,7 @@ from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.io.frame import Frame
 from graphtrack.estimate.batch import BatchEstimator
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
 
 

@@ -15,7 +15,7 @@ from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.io.frame import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.graph import left_error
 from graphtrack.robot.features import base_features
 

@@ -4,7 +4,7 @@ import pytest
 
 from factors.synthetic import Q0, make_scene
 from graphtrack.io.frame import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.track import MAX_GATE_PX, Pipeline, TrackOptions
 
 

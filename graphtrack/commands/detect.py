@@ -38,7 +38,7 @@ def detect_recording(path, out, detector: str = "learned", weights: str | None =
                      quiet: bool = False) -> dict:
     """Detect on every frame of a recording; write detections.csv (and detections.mp4)."""
     from graphtrack.detect.pixel_sets import endpoints_set, line_set
-    from graphtrack.estimate.context import TrackingContext
+    from graphtrack.io.context import TrackingContext
     from graphtrack.io.recording import open_recording
     from graphtrack.io.outdir import writable_dir
     from graphtrack.robot.features import base_features, shaft_lines

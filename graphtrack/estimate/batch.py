@@ -35,7 +35,7 @@ import numpy as np
 
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
 from graphtrack.io.frame import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factors, gaussian_bw, key,
                                        left_from_right_cov, split_options)

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from graphtrack.estimate.base import Estimate
 from graphtrack.io.frame import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 
 
 class KinematicsEstimator:

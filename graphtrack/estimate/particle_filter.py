@@ -62,7 +62,7 @@ import numpy as np
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.io.frame import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)

@@ -64,7 +64,7 @@ def monte_carlo_nees(make, runs: int = 200, first: int = 60, last: int = 200, se
     from factors.synthetic import make_scene, sequence
     from graphtrack.detect.base import POLAR_MODELS, Observation
     from graphtrack.io.frame import Frame
-    from graphtrack.estimate.context import TrackingContext
+    from graphtrack.io.context import TrackingContext
     from graphtrack.estimate.graph import left_error
 
     scene = make_scene()
