@@ -1,9 +1,9 @@
 """``graphtrack train --out FILE``: train the learned detector's weights from simulated data.
 
 One reproducible command: it simulates the training frames
-(:func:`graphtrack.detect.training.data.generate`: both scenes, domain
+(:func:`graphtrack.training.data.generate`: both scenes, domain
 randomised, ground-truth shaft edges from truth), passes them through JPEG
-(q 95) and trains the network (:mod:`graphtrack.detect.training.fit`). The
+(q 95) and trains the network (:mod:`graphtrack.training.fit`). The
 shipped ``graphtrack/data/learned_detector.pt`` is
 
     graphtrack train --out graphtrack/data/learned_detector.pt --device cuda
@@ -41,8 +41,8 @@ def add_parser(sub):
 def run(args) -> int:
     import numpy as np
 
-    from graphtrack.detect.training.data import generate
-    from graphtrack.detect.training.fit import jpeg_roundtrip, save, train
+    from graphtrack.training.data import generate
+    from graphtrack.training.fit import jpeg_roundtrip, save, train
 
     if args.frames <= 0:
         raise InputError("--frames must be positive")
