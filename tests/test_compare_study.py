@@ -48,7 +48,7 @@ def test_compare_writes_table_csv_png_and_resumes(rec, tmp_path):
 
     # an interrupted study (one cell without done.json) recomputes only that cell
     (cells[1] / "done.json").unlink()
-    from graphtrack.eval.study import StudyOptions, run_study
+    from graphtrack.study import StudyOptions, run_study
 
     data = run_study([str(rec)], out, StudyOptions(estimators=["kinematics", "pf"],
                                                    observations=["line-intensities"], max_frames=12,

@@ -22,7 +22,7 @@ def _list(value: str, allowed, what: str) -> list[str]:
 
 
 def study_options_from_args(args):
-    from graphtrack.eval.study import StudyOptions
+    from graphtrack.study import StudyOptions
 
     if args.particles <= 0:
         raise InputError("--particles must be positive")
@@ -41,7 +41,7 @@ def study_options_from_args(args):
 
 
 def run(args) -> int:
-    from graphtrack.eval.study import format_table, run_study
+    from graphtrack.study import format_table, run_study
 
     options = study_options_from_args(args)
     data = run_study(args.sequences, args.out, options, workers=args.workers, ray_address=args.ray,

@@ -33,7 +33,7 @@ def default_detector() -> tuple[str, str | None]:
 def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZE, particles: int = PARTICLES,
              quiet: bool = False, detector: str | None = None) -> dict:
     from graphtrack.errors import InputError
-    from graphtrack.eval.study import StudyOptions, format_table, run_study
+    from graphtrack.study import StudyOptions, format_table, run_study
     from graphtrack.sim.simulate import cached_recording
 
     if frames <= 0:

@@ -1,4 +1,4 @@
-"""Running a study's cells (:mod:`graphtrack.eval.study`): one cell into its folder.
+"""Running a study's cells (:mod:`graphtrack.study.plan`): one cell into its folder.
 
 A cell is one ``graphtrack track`` run with the cell's options
 (:func:`track_options` builds them exactly as the command does). Its folder
@@ -20,14 +20,11 @@ import time
 import traceback
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from graphtrack.errors import InputError
-
-if TYPE_CHECKING:
-    from graphtrack.eval.study import Cell
+from graphtrack.study.cells import Cell
 
 
 def track_options(cell: Cell):

@@ -28,67 +28,19 @@ particle filter is one draw: on the benchmark's structured recording, four
 filter seeds of line-intensities-polar gave 4.5, 5.9, 9.5 and 6.8 px.
 
 Cells run in local processes (``workers``) or as Ray tasks (``ray_address``),
-by :mod:`graphtrack.eval.study_exec`.
+by :mod:`graphtrack.study.execute`; the tables by :mod:`graphtrack.study.report`.
 """
 from __future__ import annotations
 
 import importlib
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from graphtrack.errors import InputError
-from graphtrack.eval.study_exec import run_local, run_ray
-# the report is read back from the cell folders; format_table / cell_status are re-exported
-from graphtrack.eval.study_report import cell_status, format_table, is_done, plot_accumulated, write_tables  # noqa: F401
-
-STUDY_VERSION = 1
-#: Options that change a cell's result: a study folder holds one value of each.
-CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
-                "alpha", "beta", "markers")
-
-
-@dataclass
-class StudyOptions:
-    estimators: list[str] = field(default_factory=lambda: ["kinematics", "pf", "smoother", "batch"])
-    observations: list[str] = field(default_factory=lambda: ["line-intensities"])
-    detector: str = "learned"
-    weights: str | None = None
-    max_frames: int | None = None
-    particles: int = 1000
-    lag: float = 1.0
-    smoother: str = "isam2"
-    seed: int = 0
-    alpha: float = 10.0
-    beta: float = 0.9
-    markers: bool = True
-    repeats: int = 1        #: runs (seeds seed .. seed+repeats-1) of each seed-dependent cell
-
-    def cell_options(self) -> dict:
-        return {k: getattr(self, k) for k in CELL_OPTIONS}
-
-
-@dataclass
-class Cell:
-    recording: str          # display name (folder name under runs/)
-    path: str               # the recording's path
-    estimator: str
-    observation: str | None  # None for kinematics
-    out: str                # the cell's output folder
-    options: dict           # StudyOptions.cell_options()
-    video: bool = False     # also write overlay.mp4
-    repeat: int = 0         # 0: the study's seed; r: a repeat with seed + r (its options' seed)
-
-    @property
-    def key(self) -> str:
-        k = self.estimator if self.observation is None else f"{self.estimator}-{self.observation}"
-        return k if self.repeat == 0 else f"{k}.seed{self.options['seed']}"
-
-    @property
-    def row(self) -> tuple[str, str]:
-        return ("—" if self.observation is None else self.observation, self.estimator)
-
+from graphtrack.study.cells import CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions
+from graphtrack.study.execute import run_local, run_ray
+from graphtrack.study.report import is_done, plot_accumulated, write_tables
 
 # -- which combinations exist -----------------------------------------------------------
 def supported_observations(estimator: str) -> tuple[str, ...] | None:

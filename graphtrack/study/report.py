@@ -1,6 +1,6 @@
 """The study's report: table.md / table.csv / runtime.csv / results.csv and the
 accumulated-error plots, read back from the cell folders of
-:mod:`graphtrack.eval.study` (a cell is complete when it holds done.json).
+:mod:`graphtrack.study.plan` (a cell is complete when it holds done.json).
 """
 from __future__ import annotations
 
@@ -8,12 +8,9 @@ import csv
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from graphtrack.errors import InputError
-
-if TYPE_CHECKING:
-    from graphtrack.eval.study import Cell
+from graphtrack.study.cells import Cell
 
 
 def is_done(cell: Cell) -> bool:
