@@ -161,8 +161,7 @@ def test_batch_marginals_with_bias_match_gtsam(every):
     block (23 frames) and a frame without detections."""
     robot, cam, E0, frames = sequence(23, seed=5, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5,
                                       marker_noise=2.0, pixels_per_edge=40)
-    est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities",
-                         edge_bias=True, edge_bias_every=every)
+    est = make_estimator("batch", TrackingContext(robot, cam, E0), edge_bias=True, edge_bias_every=every)
     for f in frames:
         obs = (Observation("line-intensities") if f.index == 7
                else Observation("line-intensities", pixels=f.pixels, markers=f.markers))
@@ -220,8 +219,7 @@ def _batch_errors_with_and_without_bias(robot, cam, E0, frames, observations) ->
     without (False) and with (True) the edge-bias state."""
     errs = {}
     for on in (False, True):
-        est = make_estimator("batch", TrackingContext(robot, cam, E0), observation=observations[0].model,
-                             edge_bias=on, covariance=False)
+        est = make_estimator("batch", TrackingContext(robot, cam, E0), edge_bias=on, covariance=False)
         for f, ob in zip(frames, observations):
             est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), ob)
         out = est.finish()

@@ -12,10 +12,11 @@ Estimators never see ground truth (truth.csv, labels.csv).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
 
+from graphtrack.detect.base import Observation
 from graphtrack.io.frame import Frame
 
 #: trajectory.csv columns of an estimator's uncertainty: the standard deviations of
@@ -53,12 +54,27 @@ class Estimate:
 
 
 class Estimator(Protocol):
-    """Streaming estimator of E_t. ``name`` is used in outputs and studies."""
+    """Streaming estimator of E_t: what the tracking loop and the studies use, declared
+    as class attributes by every estimator (read from the class, before building it).
 
-    name: str
+    name: the estimator's name in outputs and studies (``--estimator``);
+    uses_observations: False when it ignores images (the loop then skips
+    undistortion, detection and observation); stochastic: True when its
+    estimate depends on the seed (studies repeat it over seeds);
+    supported_observations: the observation models (``Observation.model``) it
+    can score, () for one that uses none; extra_columns: its trajectory.csv
+    columns beyond the standard ones (values from ``Estimate.extra`` / ``std``).
+    """
 
-    def step(self, frame: Frame, observation) -> Estimate:  # pragma: no cover - protocol
-        """Consume one frame and its observation (may be empty); return E_t."""
+    name: ClassVar[str]
+    uses_observations: ClassVar[bool]
+    stochastic: ClassVar[bool]
+    supported_observations: ClassVar[tuple[str, ...]]
+    extra_columns: ClassVar[tuple[str, ...]]
+
+    def step(self, frame: Frame, observation: Observation | None) -> Estimate:  # pragma: no cover - protocol
+        """Consume one frame and its observation (None: no images used; may be empty);
+        return E_t. The observation's ``model`` names its observation model."""
         ...
 
     def finish(self) -> list[Estimate] | None:  # pragma: no cover - protocol

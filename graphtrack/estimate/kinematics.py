@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 from graphtrack.estimate.base import Estimate
-from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
+from graphtrack.io.frame import Frame
 
 
 class KinematicsEstimator:
@@ -11,8 +11,11 @@ class KinematicsEstimator:
 
     name = "kinematics"
     uses_observations = False
+    stochastic = False
+    supported_observations = ()
+    extra_columns = ()
 
-    def __init__(self, ctx: TrackingContext, **_ignored):
+    def __init__(self, ctx: TrackingContext):
         self.E0 = ctx.handeye.copy()
 
     def step(self, frame: Frame, observation=None) -> Estimate:

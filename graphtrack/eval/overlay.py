@@ -19,6 +19,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from graphtrack.errors import InputError
+from graphtrack.robot.features import base_features
 
 GREEN = (0, 200, 0)
 YELLOW = (0, 255, 255)
@@ -80,8 +82,6 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
                  tip_uv: np.ndarray | None = None, label_uv: np.ndarray | None = None,
                  text: str | None = None) -> np.ndarray:
     """Return a copy of the raw BGR image with the overlay of one frame drawn on it."""
-    from graphtrack.robot.features import base_features
-
     cam = ctx.camera
     img = np.ascontiguousarray(image.copy() if image is not None
                                else np.zeros((cam.height, cam.width, 3), np.uint8))
@@ -154,8 +154,6 @@ class OverlayWriter:
         fourcc = cv2.VideoWriter_fourcc(*"mp4v")
         self._writer = cv2.VideoWriter(str(self.path), fourcc, self.fps, size)
         if not self._writer.isOpened():
-            from graphtrack.errors import InputError
-
             raise InputError(f"{self.path}: cannot open an mp4 video writer")
 
     def write(self, frame, estimate, detection=None, observation=None, tip_uv_raw=None) -> None:

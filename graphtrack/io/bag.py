@@ -34,6 +34,8 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.bag1scan import Bag1Scan
+from graphtrack.io.frame import Frame
 
 IMAGE_TOPIC = "/stereo/left/image"
 COMPRESSED_TOPIC = "/stereo/left/image/compressed"
@@ -191,7 +193,6 @@ class BagSource:
 
     def _scan_topics(self, err: Exception) -> dict[str, tuple[str, int]]:
         """Unindexed/truncated ROS 1 bag: one scan pass collects joints and image stamps."""
-        from graphtrack.io.bag1scan import Bag1Scan
         from rosbags.typesys import Stores, get_typestore
 
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -278,7 +279,6 @@ class BagSource:
     def _image_messages(self) -> Iterator[tuple[int, int, bytes, object]]:
         """(bag time ns, raw bytes, deserializer) per left image, in bag order."""
         if self.scan:
-            from graphtrack.io.bag1scan import Bag1Scan
             from rosbags.typesys import Stores, get_typestore
 
             store = get_typestore(Stores.ROS1_NOETIC)
@@ -296,8 +296,6 @@ class BagSource:
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
         """
-        from graphtrack.io.frame import Frame
-
         joints, jaw = self.joint_tables()
         index = -1
         it = self._image_messages()

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.frame import Frame
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 
@@ -139,8 +140,6 @@ class FolderSource:
 
     def frames(self, start: int = 0):
         """Yield, per row of joints.csv from ``start`` on, a Frame (unchecked) or a FrameError."""
-        from graphtrack.io.frame import Frame
-
         for k, img, err in self._images(start):
             if err is not None:
                 yield FrameError(k, "corrupt_image", err)

@@ -3,6 +3,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from graphtrack.detect.options import OBSERVATION, DetectionOptions
+from graphtrack.estimate import ESTIMATORS
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.track import TrackOptions
+
 STUDY_VERSION = 1
 #: Options that change a cell's result: a study folder holds one value of each.
 CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
@@ -11,22 +16,25 @@ CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smooth
 
 @dataclass
 class StudyOptions:
-    estimators: list[str] = field(default_factory=lambda: ["kinematics", "pf", "smoother", "batch"])
-    observations: list[str] = field(default_factory=lambda: ["line-intensities"])
-    detector: str = "learned"
-    weights: str | None = None
-    max_frames: int | None = None
-    particles: int = 1000
-    lag: float = 1.0
-    smoother: str = "isam2"
+    """estimators x observations: the cells run on every recording (the kinematics
+    baseline once per recording); detection, estimation, seed: as in every cell's
+    TrackOptions; max_frames: per recording (None: all); repeats: runs (seeds
+    seed .. seed+repeats-1) of each seed-dependent cell."""
+
+    estimators: list[str] = field(default_factory=lambda: list(ESTIMATORS))
+    observations: list[str] = field(default_factory=lambda: [OBSERVATION])
+    detection: DetectionOptions = field(default_factory=DetectionOptions)
+    estimation: EstimatorOptions = field(default_factory=EstimatorOptions)
     seed: int = 0
-    alpha: float = 10.0
-    beta: float = 0.9
-    markers: bool = True
-    repeats: int = 1        #: runs (seeds seed .. seed+repeats-1) of each seed-dependent cell
+    max_frames: int | None = None
+    repeats: int = 1
 
     def cell_options(self) -> dict:
-        return {k: getattr(self, k) for k in CELL_OPTIONS}
+        """The CELL_OPTIONS values (flat, as study.json and done.json store them)."""
+        d, e = self.detection, self.estimation
+        return {"detector": d.detector, "weights": d.weights, "max_frames": self.max_frames,
+                "particles": e.particles, "lag": e.lag, "smoother": e.smoother, "seed": self.seed,
+                "alpha": d.alpha, "beta": d.beta, "markers": d.markers}
 
 
 @dataclass
@@ -48,3 +56,14 @@ class Cell:
     @property
     def row(self) -> tuple[str, str]:
         return ("—" if self.observation is None else self.observation, self.estimator)
+
+    def track_options(self) -> TrackOptions:
+        """The cell's TrackOptions (one seed for the observation draws and the estimator)."""
+        o = self.options
+        return TrackOptions(
+            estimator=self.estimator, observation=self.observation or OBSERVATION,
+            detection=DetectionOptions(detector=o["detector"], weights=o["weights"], alpha=o["alpha"],
+                                       beta=o["beta"], markers=o["markers"]),
+            estimation=EstimatorOptions(particles=o["particles"], seed=o["seed"], lag=o["lag"],
+                                        smoother=o["smoother"]),
+            seed=o["seed"])

@@ -10,6 +10,9 @@ import math
 from pathlib import Path
 
 from graphtrack.errors import InputError
+from graphtrack.eval.metrics import accumulated_error, tip_error_series
+from graphtrack.io.labels import read_labels
+from graphtrack.io.trajectory import read_trajectory
 from graphtrack.study.cells import Cell
 
 
@@ -161,14 +164,10 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
     """accumulated_error_<recording>.png: one curve per completed cell with labels (the
     study's own seed of a repeated one)."""
-    import matplotlib
+    import matplotlib  # heavy, and only the plots need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from graphtrack.eval.metrics import accumulated_error, tip_error_series
-    from graphtrack.io.labels import read_labels
-    from graphtrack.io.trajectory import read_trajectory
 
     written = []
     for rec in dict.fromkeys(c.recording for c in cells):
