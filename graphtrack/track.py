@@ -31,6 +31,7 @@ from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
+from graphtrack.io.topics import TopicSelection
 from graphtrack.io.trajectory import TrajectoryWriter
 from graphtrack.robot.features import base_features, shaft_lines
 
@@ -195,9 +196,10 @@ def _evaluated_tip(rec: Recording, tip_feature: str | None):
     return robot
 
 
-def _open(path: str | Path, options: TrackOptions, quiet: bool) -> tuple[Recording, TrackingContext]:
+def _open(path: str | Path, options: TrackOptions, quiet: bool,
+          topics: TopicSelection) -> tuple[Recording, TrackingContext]:
     """The recording (checked; its warnings printed unless quiet) and its tracking context."""
-    rec = open_recording(path)
+    rec = open_recording(path, topics=topics)
     if rec.robot.has_gripper and not rec.has_jaw:
         raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
                          "(/dvrk/PSM1/state_jaw_current or the joints.csv 'jaw' column); the tool tip "
@@ -284,13 +286,16 @@ def _refine(pipe: Pipeline, run: _Run, writer: TrajectoryWriter, extra: list[str
 
 
 def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
-          progress: bool = True, max_frames: int | None = None, quiet: bool = False) -> dict:
+          progress: bool = True, max_frames: int | None = None, quiet: bool = False,
+          topics: TopicSelection = TopicSelection()) -> dict:
     """Run one estimator over a recording; write the outputs into ``out``; return metrics.
+
+    ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`).
 
     The returned dict is metrics.json's content plus ``timing`` (median ms
     per stage) and ``fps``.
     """
-    rec, ctx = _open(path, options, quiet)
+    rec, ctx = _open(path, options, quiet, topics)
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns

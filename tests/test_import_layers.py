@@ -4,7 +4,7 @@ each other, directly or through others.
 
 Layers, lowest first (a unit may import any unit below it, never one above):
 
-    errors < geometry < robot < io < detect < factors < estimate < eval < track < study < commands < cli
+    errors < threads;  errors < geometry < robot < io < detect < factors < estimate < eval < track < study < commands < cli
                                     detect < sim < training < commands
 
 ``sim`` renders recordings (geometry, robot, io, detect), ``training`` trains
@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: unit -> the units it may import directly (the allowed set is the transitive closure)
 BELOW = {
     "errors": set(),
+    "threads": {"errors"},   # graphtrack/threads.py: thread pools, set before numpy loads
     "geometry": {"errors"},
     "robot": {"geometry"},
     "io": {"robot"},
@@ -32,7 +33,7 @@ BELOW = {
     "study": {"track"},
     "sim": {"detect"},
     "training": {"sim"},
-    "commands": {"study", "training"},
+    "commands": {"study", "training", "threads"},
     "cli": {"commands"},
     "data": set(),
     "graphtrack": set(),   # graphtrack/__init__.py

@@ -21,7 +21,6 @@ import csv
 import sys
 import time
 
-import cv2
 import numpy as np
 from tqdm import tqdm
 
@@ -35,6 +34,8 @@ from graphtrack.errors import FrameError, InputError
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import open_recording
+from graphtrack.io.topics import TopicSelection
+from graphtrack.io.video import StampedVideoWriter
 from graphtrack.robot.features import base_features, shaft_lines
 
 
@@ -44,18 +45,19 @@ def _num(x) -> str:
 
 
 def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), video: bool = False,
-                     max_frames: int | None = None, quiet: bool = False) -> dict:
+                     max_frames: int | None = None, quiet: bool = False,
+                     topics: TopicSelection = TopicSelection()) -> dict:
     """Detect on every frame of a recording; write detections.csv (and detections.mp4).
-    Of ``options`` it uses detector, weights, alpha and beta (at full size)."""
-    rec = open_recording(path)
+    Of ``options`` it uses detector, weights, alpha and beta (at full size); ``topics``:
+    the arm and bag topics to read (default: detected)."""
+    rec = open_recording(path, topics=topics)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(out)
     detector, alpha, beta = options.detector, options.alpha, options.beta
     det = make_detector(detector, **options.detector_keywords())
     writer = None
     if video:
-        writer = cv2.VideoWriter(str(out / "detections.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 15.0,
-                                 (ctx.camera.width, ctx.camera.height))
+        writer = StampedVideoWriter(out / "detections.mp4")
     header = ["frame", "n_segments", "n_edges"]
     for i in range(2):
         header += [f"{k}_{i}" for k in ("rho", "theta", "x1", "y1", "x2", "y2", "Ee", "El")]
@@ -104,9 +106,9 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             f.flush()
             if writer is not None:
                 obs = make_observation(d, "line-intensities", alpha=alpha, beta=beta, use_markers=True)
-                writer.write(draw_detection(und, d, obs))
+                writer.write(draw_detection(und, d, obs), item.stamp)
     if writer is not None:
-        writer.release()
+        writer.close()
     return {"frames": n, "frames_skipped": skipped,
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
@@ -65,6 +66,8 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
     p.add_argument("--max-frames", type=int, default=None, metavar="N", help="track at most N frames (None: all)")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
+    add_threads_argument(p)
+    add_source_arguments(p)
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
@@ -85,11 +88,13 @@ def options_from_args(args) -> TrackOptions:
 
 def run(args) -> int:
     result = track(args.sequence, args.out, options_from_args(args), video=args.video,
-                   progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet)
+                   progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,
+                   topics=source_from_args(args))
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))
-        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json")
+        video = ", overlay.mp4" if args.video else ""
+        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json{video}")
     return 0
 
 
