@@ -42,6 +42,8 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.bag1scan import Bag1Scan
+from graphtrack.io.frame import Frame
 from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
 
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
@@ -197,7 +199,6 @@ class BagSource:
 
     def _scan_topics(self, err: Exception) -> dict[str, tuple[str, int]]:
         """Unindexed/truncated ROS 1 bag: one scan pass collects joints and image stamps."""
-        from graphtrack.io.bag1scan import Bag1Scan
         from rosbags.typesys import Stores, get_typestore
 
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -293,7 +294,6 @@ class BagSource:
         images), in bag order."""
         topic = topic or self.image_topic
         if self.scan:
-            from graphtrack.io.bag1scan import Bag1Scan
             from rosbags.typesys import Stores, get_typestore
 
             store = get_typestore(Stores.ROS1_NOETIC)
@@ -311,8 +311,6 @@ class BagSource:
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
         """
-        from graphtrack.estimate.base import Frame
-
         joints, jaw = self.joint_tables()
         index = -1
         it = self._image_messages()

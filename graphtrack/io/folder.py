@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.frame import Frame
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 
@@ -150,8 +151,6 @@ class FolderSource:
 
         Frame.image_right: frames_right/ holds the right image of the left image with the
         same name (same row, same stamp); None when it is missing or does not decode."""
-        from graphtrack.estimate.base import Frame
-
         for k, img, err in self._images(start):
             if err is not None:
                 yield FrameError(k, "corrupt_image", err)

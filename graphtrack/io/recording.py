@@ -48,6 +48,7 @@ from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
 from graphtrack.io.labels import read_labels
 from graphtrack.io.topics import TopicSelection
+from graphtrack.robot.description import load_robot_json
 
 REQUIRED = ("robot.json", "camera_calibration.yaml", "handeye.yaml")
 
@@ -177,8 +178,6 @@ def _dh_count(robot_json: Path) -> int | None:
 
 
 def _default_robot_loader(path: Path):
-    from graphtrack.robot.description import load_robot_json  # written in parallel: import lazily
-
     return load_robot_json(path)
 
 
