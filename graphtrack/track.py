@@ -8,7 +8,6 @@ metrics.json; bad recordings raise InputError before anything is written.
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from collections import Counter
@@ -199,6 +198,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
     from graphtrack.io.outdir import writable_dir
     from graphtrack.io.recording import open_recording
+    from graphtrack.io.run_output import write_json
     from graphtrack.io.trajectory import TrajectoryWriter
 
     rec = open_recording(path)
@@ -219,7 +219,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         from graphtrack.eval.overlay import OverlayWriter
 
         overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels)
-    skipped: Counter = Counter()
+    skipped = SkipCounter()
     frames, tips, stage_ms, rows, frame_ms = [], [], {s: [] for s in STAGES}, [], []
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
     bar = None
@@ -242,20 +242,25 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             n += 1
             if bar is not None:
                 bar.update(1)
+            if not isinstance(item, FrameError) and (len(item.q) != rec.robot.n_joints
+                                                     or not np.all(np.isfinite(item.q))):
+                item = FrameError(item.index, "joint_count" if len(item.q) != rec.robot.n_joints
+                                  else "nan_joints", f"joint vector has {len(item.q)} values (finite: "
+                                  f"{bool(np.all(np.isfinite(item.q)))}), expected {rec.robot.n_joints}")
+            if not isinstance(item, FrameError) and not (np.isfinite(item.stamp) and
+                                                         (not rows or item.stamp > rows[-1][1])):
+                item = FrameError(item.index, "stamp_order", f"stamp {item.stamp!r} is not after the "
+                                  f"previous frame's {rows[-1][1] if rows else None!r}")
             if isinstance(item, FrameError):
-                skipped[item.reason] += 1
-                if not quiet:
-                    print(f"graphtrack: warning: skipping {item}", file=sys.stderr)
+                skip(skipped, item, quiet)
                 continue
             frame = item
-            if len(frame.q) != rec.robot.n_joints or not np.all(np.isfinite(frame.q)):
-                skipped["joint_count" if len(frame.q) != rec.robot.n_joints else "nan_joints"] += 1
-                if not quiet:
-                    print(f"graphtrack: warning: skipping frame {frame.index}: joint vector has "
-                          f"{len(frame.q)} finite={bool(np.all(np.isfinite(frame.q)))} values, "
-                          f"expected {rec.robot.n_joints}", file=sys.stderr)
-                continue
             est, det, obs, ms = pipe.step(frame)
+            if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
+                skip(skipped, FrameError(frame.index, "nonfinite_estimate", "the estimator returned a "
+                                         "non-finite pose"), quiet)
+                pipe.last_E, pipe.last_std = ctx.handeye.copy(), None
+                continue
             t = time.perf_counter()
             tip = tip_pixel(ctx, frame.q, est.E)
             total_ms = t_decode + sum(ms.values())
@@ -270,15 +275,16 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                 stage_ms[s].append(ms.get(s, 0.0))
             frames.append(frame.index)
             tips.append(tip)
-            rows.append((frame.index, frame.stamp, frame.q, total_ms))
+            rows.append((frame.index, frame.stamp, frame.q, total_ms, est.E))
         refined = pipe.estimator.finish() if hasattr(pipe.estimator, "finish") else None
         if refined is not None:
             tips = []
             new_rows = []
-            for (fi, stamp, q, ms_), est in zip(rows, refined):
-                tip = tip_pixel(ctx, q, est.E)
+            for (fi, stamp, q, ms_, E0), est in zip(rows, refined):
+                E = est.E if np.all(np.isfinite(est.E)) else E0   # a non-finite refinement keeps the streamed pose
+                tip = tip_pixel(ctx, q, E)
                 tips.append(tip)
-                new_rows.append((fi, stamp, est.E, tip, ms_, _extras(est, extra)))
+                new_rows.append((fi, stamp, E, tip, ms_, _extras(est, extra)))
             writer.rewrite_all(new_rows)
     wall = time.perf_counter() - t_wall
     if bar is not None:
@@ -288,7 +294,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     tips_arr = np.asarray(tips, dtype=float).reshape(-1, 2)
     result = {"estimator": options.estimator, "observation": options.observation,
               "detector": options.detector, "frames_tracked": len(frames),
-              "skipped_reasons": dict(skipped), "frames_skipped": int(sum(skipped.values()))}
+              "skipped_reasons": dict(skipped), "frames_skipped": int(sum(skipped.values())),
+              "frames_total": n, "skip_examples": skipped.examples}
     if rec.labels is not None:
         result.update(tip_metrics(frames, tips_arr, rec.labels, ctx.camera.diagonal, dict(skipped), n))
     result.update(evaluate_against_truth(path, out, rec.robot, {r[0]: r[2] for r in rows}))
@@ -300,8 +307,25 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     result["frame_ms_mean"] = float(np.mean(steady)) if steady else float("nan")
     result["fps_steady"] = float(1e3 / np.mean(steady)) if steady else float("nan")
     result["wall_s"] = float(wall)
-    (out / "metrics.json").write_text(json.dumps(result, indent=2))
+    write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
+
+
+class SkipCounter(Counter):
+    """Skipped frames per reason, and the first message of each (metrics.json
+    ``skip_examples``)."""
+
+    def __init__(self):
+        super().__init__()
+        self.examples: dict[str, str] = {}
+
+
+def skip(skipped: SkipCounter, error: FrameError, quiet: bool) -> None:
+    """Count a skipped frame, keep its reason's first message, warn unless quiet."""
+    skipped[error.reason] += 1
+    skipped.examples.setdefault(error.reason, str(error))
+    if not quiet:
+        print(f"graphtrack: warning: skipping {error}", file=sys.stderr)
 
 
 def _extras(est: Estimate, columns: list[str]) -> dict:

@@ -36,6 +36,8 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="k
     p.add_argument("--max-frames", type=int, default=None, metavar="N")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace another run's files in --out (refused otherwise)")
 
 
 def options_from_args(args):
@@ -46,6 +48,8 @@ def options_from_args(args):
         raise InputError("--particles must be positive")
     if args.lag <= 0:
         raise InputError("--lag must be positive")
+    if getattr(args, "max_frames", None) is not None and args.max_frames < 1:
+        raise InputError("--max-frames must be at least 1")
     detect_scale = getattr(args, "detect_scale", None)
     if detect_scale is not None and not 0.05 <= detect_scale <= 1.0:
         raise InputError("--detect-scale must be in [0.05, 1]")
@@ -64,10 +68,14 @@ def options_from_args(args):
 
 
 def run(args) -> int:
+    from graphtrack.io.run_output import prepare_run_dir, require_tracked
     from graphtrack.track import track
 
-    result = track(args.sequence, args.out, options_from_args(args), video=args.video,
+    options = options_from_args(args)
+    prepare_run_dir(args.out, overwrite=args.overwrite)
+    result = track(args.sequence, args.out, options, video=args.video,
                    progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet)
+    require_tracked(result, args.out)   # no tracked frame: exit status 2, never 0
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))

@@ -19,10 +19,16 @@ ESTIMATORS = {
     "batch": ("graphtrack.estimate.batch", "BatchEstimator"),
 }
 
+#: estimators that cannot run without a shaft feature in robot.json
+NEEDS_SHAFT = {"pf": "particle filter"}
+
 
 def make_estimator(name: str, ctx, **options):
     """Instantiate estimator ``name`` with the tracking context and its options."""
     if name not in ESTIMATORS:
         raise InputError(f"--estimator: unknown estimator {name!r} (choose from {', '.join(ESTIMATORS)})")
+    if name in NEEDS_SHAFT and not getattr(getattr(ctx, "robot", None), "shaft_features", True):
+        raise InputError(f"robot.json has no shaft_features: the {NEEDS_SHAFT[name]} needs the shaft's "
+                         "cylinder (its silhouette edges are what it observes)")
     module, cls = ESTIMATORS[name]
     return getattr(importlib.import_module(module), cls)(ctx, **options)
