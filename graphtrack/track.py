@@ -20,6 +20,7 @@ from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
 from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.topics import TopicSelection
 from graphtrack.robot.features import base_features, shaft_lines
 
 STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
@@ -189,8 +190,11 @@ def _evaluated_tip(rec, tip_feature: str | None):
 
 
 def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
-          progress: bool = True, max_frames: int | None = None, quiet: bool = False) -> dict:
+          progress: bool = True, max_frames: int | None = None, quiet: bool = False,
+          topics: TopicSelection = TopicSelection()) -> dict:
     """Run one estimator over a recording; write the outputs into ``out``; return metrics.
+
+    ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`).
 
     The returned dict is metrics.json's content plus ``timing`` (median ms
     per stage) and ``fps``.
@@ -201,7 +205,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     from graphtrack.io.run_output import write_json
     from graphtrack.io.trajectory import TrajectoryWriter
 
-    rec = open_recording(path)
+    rec = open_recording(path, topics=topics)
     if rec.robot.has_gripper and not rec.has_jaw:
         raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
                          "(/dvrk/PSM1/state_jaw_current or the joints.csv 'jaw' column); the tool tip "

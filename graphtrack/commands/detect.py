@@ -35,15 +35,17 @@ def _num(x) -> str:
 
 def detect_recording(path, out, detector: str = "learned", weights: str | None = None, video: bool = False,
                      max_frames: int | None = None, alpha: float = 10.0, beta: float = 0.9,
-                     quiet: bool = False) -> dict:
-    """Detect on every frame of a recording; write detections.csv (and detections.mp4)."""
+                     quiet: bool = False, topics=None) -> dict:
+    """Detect on every frame of a recording; write detections.csv (and detections.mp4).
+
+    ``topics``: a :class:`graphtrack.io.topics.TopicSelection` (default: detected)."""
     from graphtrack.detect.pixel_sets import endpoints_set, line_set
     from graphtrack.estimate.context import TrackingContext
     from graphtrack.io.recording import open_recording
     from graphtrack.io.outdir import writable_dir
     from graphtrack.robot.features import base_features, shaft_lines
 
-    rec = open_recording(path)
+    rec = open_recording(path, **({"topics": topics} if topics is not None else {}))
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(out)
     from graphtrack.detect import make_detector
@@ -51,10 +53,9 @@ def detect_recording(path, out, detector: str = "learned", weights: str | None =
     det = make_detector(detector, **({"weights": weights} if weights else {}))
     writer = None
     if video:
-        import cv2
+        from graphtrack.io.video import StampedVideoWriter
 
-        writer = cv2.VideoWriter(str(out / "detections.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 15.0,
-                                 (ctx.camera.width, ctx.camera.height))
+        writer = StampedVideoWriter(out / "detections.mp4")
     header = ["frame", "n_segments", "n_edges"]
     for i in range(2):
         header += [f"{k}_{i}" for k in ("rho", "theta", "x1", "y1", "x2", "y2", "Ee", "El")]
@@ -108,9 +109,9 @@ def detect_recording(path, out, detector: str = "learned", weights: str | None =
                 from graphtrack.detect.observe import make_observation
 
                 obs = make_observation(d, "line-intensities", alpha=alpha, beta=beta, use_markers=True)
-                writer.write(draw_detection(und, d, obs))
+                writer.write(draw_detection(und, d, obs), item.stamp)
     if writer is not None:
-        writer.release()
+        writer.close()
     return {"frames": n, "frames_skipped": skipped,
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
 

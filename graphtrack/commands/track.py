@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 
+from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.estimate import ESTIMATORS
 
@@ -36,6 +37,8 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="k
     p.add_argument("--max-frames", type=int, default=None, metavar="N")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
+    add_threads_argument(p)
+    add_source_arguments(p)
     p.add_argument("--overwrite", action="store_true",
                    help="replace another run's files in --out (refused otherwise)")
 
@@ -74,12 +77,14 @@ def run(args) -> int:
     options = options_from_args(args)
     prepare_run_dir(args.out, overwrite=args.overwrite)
     result = track(args.sequence, args.out, options, video=args.video,
-                   progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet)
+                   progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,
+                   topics=source_from_args(args))
     require_tracked(result, args.out)   # no tracked frame: exit status 2, never 0
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))
-        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json")
+        video = ", overlay.mp4" if args.video else ""
+        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json{video}")
     return 0
 
 

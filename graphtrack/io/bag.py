@@ -4,8 +4,10 @@ is :mod:`graphtrack.io.bag_write`.
 Reading (ROS 1 ``.bag`` files and ROS 2 bag folders, via ``rosbags``) is
 streamed in two passes so that a 10 GB bag never sits in memory:
 
-1. the small joint and jaw messages (``/dvrk/PSM1/state_joint_current``,
-   ``/dvrk/PSM1/state_jaw_current``) -> arrays of header stamps (ns) and positions;
+1. the small joint and jaw messages (``/dvrk/PSM1/state_joint_current`` and
+   ``/dvrk/PSM1/state_jaw_current``, or dVRK 2.x's ``/PSM1/measured_js`` and
+   ``/PSM1/jaw/measured_js``; :mod:`graphtrack.io.topics`) -> arrays of header
+   stamps (ns) and positions;
 2. the left images (``/stereo/left/image``, else ``/stereo/left/image/compressed``)
    in bag order, decoded one at a time; each takes the joint and jaw messages
    whose header stamps are nearest its own header stamp (ties: the earlier one).
@@ -34,20 +36,12 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
 
-IMAGE_TOPIC = "/stereo/left/image"
-COMPRESSED_TOPIC = "/stereo/left/image/compressed"
+IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
-
-
-def joint_topic(arm: str = "PSM1") -> str:
-    return f"/dvrk/{arm}/state_joint_current"
-
-
-def jaw_topic(arm: str = "PSM1") -> str:
-    return f"/dvrk/{arm}/state_jaw_current"
 
 
 # -- stamps and image decoding -----------------------------------------------------------
@@ -169,16 +163,17 @@ class JointTable:
 class BagSource:
     """One ROS 1 bag file or ROS 2 bag folder: validated at construction, streamed later.
 
-    Attributes: path, image_topic, n_images (frame count, from the index; from a
-    scan for truncated bags), has_jaw, truncated, warnings (lines for the user).
-    Raises InputError naming the bag (and topic) when it cannot be read or lacks
-    the left image topic or the joint topic.
+    Attributes: path, arm, image_topic, joint_topic, jaw_topic (chosen by
+    :func:`graphtrack.io.topics.resolve_topics` from ``selection``), n_images
+    (frame count, from the index; from a scan for truncated bags), has_jaw,
+    truncated, warnings (lines for the user). Raises InputError naming the bag
+    (and topic) when it cannot be read or lacks the left image topic or the
+    joint topic.
     """
 
-    def __init__(self, path: str | Path, arm: str = "PSM1"):
+    def __init__(self, path: str | Path, selection: TopicSelection = TopicSelection()):
         self.path = Path(path)
-        self.arm = arm
-        self.joint_topic, self.jaw_topic = joint_topic(arm), jaw_topic(arm)
+        self.selection = selection
         self.ros2 = self.path.is_dir()
         self.truncated = False
         self.warnings: list[str] = []
@@ -226,46 +221,45 @@ class BagSource:
         store = get_typestore(Stores.ROS1_NOETIC)
         scan = Bag1Scan(self.path)
         counts: dict[str, list] = {}
-        joints: dict[str, tuple[list, list]] = {self.joint_topic: ([], []), self.jaw_topic: ([], [])}
-        img_stamps: dict[str, list[int]] = {IMAGE_TOPIC: [], COMPRESSED_TOPIC: []}
+        joints: dict[str, tuple[list, list]] = {}
+        img_stamps: dict[str, list[int]] = {}
         for conn, t, raw in scan.messages():
             counts.setdefault(conn.topic, [conn.msgtype, 0])[1] += 1
-            if conn.topic in joints and conn.msgtype == JOINT_TYPE:
-                self._add_joint(joints[conn.topic], store.deserialize_ros1, raw, conn.msgtype, t)
-            elif conn.topic in img_stamps:
+            if conn.msgtype == JOINT_TYPE:
+                self._add_joint(joints.setdefault(conn.topic, ([], [])), store.deserialize_ros1, raw,
+                                conn.msgtype, t)
+            elif conn.msgtype in (IMAGE_TYPE, COMPRESSED_TYPE):
                 ns = _raw_header_ns(raw, False) if len(raw) >= 12 else 0
-                img_stamps[conn.topic].append(ns or t)
+                img_stamps.setdefault(conn.topic, []).append(ns or t)
         self.truncated = True
         why = f"{_one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
         self.warnings.append(f"{self.path}: bag index unusable ({why}); read by scanning its "
                              "records, frames after the damage are missing")
-        self._table = (JointTable.build(*joints[self.joint_topic]), JointTable.build(*joints[self.jaw_topic]))
+        self._scan_joints = joints
         self._scan_stamps = img_stamps
         return {k: (v[0], v[1]) for k, v in counts.items()}
 
     def _choose_topics(self, topics: dict[str, tuple[str, int]]) -> None:
-        if IMAGE_TOPIC in topics:
-            self.image_topic, want = IMAGE_TOPIC, IMAGE_TYPE
-        elif COMPRESSED_TOPIC in topics:
-            self.image_topic, want = COMPRESSED_TOPIC, COMPRESSED_TYPE
-        elif self.scan:
+        if self.scan and not any(t[0] in (IMAGE_TYPE, COMPRESSED_TYPE) for t in topics.values()):
             raise InputError(f"{self.warnings[-1]}; no complete left image found")
-        else:
-            raise InputError(f"{self.path}: no left image topic ({IMAGE_TOPIC} or {COMPRESSED_TOPIC}); "
-                             f"topics: {', '.join(sorted(topics)) or 'none'}")
+        chosen = resolve_topics(topics, self.selection, str(self.path))
+        self.arm, self.image_topic = chosen.arm, chosen.image
+        self.joint_topic, self.jaw_topic = chosen.joint, chosen.jaw
         self.image_type, self.n_images = topics[self.image_topic]
-        if self.image_type != want:
-            raise InputError(f"{self.path}: topic {self.image_topic} has type {self.image_type}, expected {want}")
-        if self.joint_topic not in topics or topics[self.joint_topic][1] == 0:
-            raise InputError(f"{self.path}: no messages on joint topic {self.joint_topic}")
+        if self.image_type not in (IMAGE_TYPE, COMPRESSED_TYPE):
+            raise InputError(f"{self.path}: topic {self.image_topic} has type {self.image_type}, expected "
+                             f"{IMAGE_TYPE} or {COMPRESSED_TYPE}")
         for t in (self.joint_topic, self.jaw_topic):
             if t in topics and topics[t][0] != JOINT_TYPE:
                 raise InputError(f"{self.path}: topic {t} has type {topics[t][0]}, expected {JOINT_TYPE}")
         self.has_jaw = topics.get(self.jaw_topic, (None, 0))[1] > 0
         if self.scan:
+            empty = ([], [])
+            self._table = (JointTable.build(*self._scan_joints.get(self.joint_topic, empty)),
+                           JointTable.build(*self._scan_joints.get(self.jaw_topic, empty)))
             # images stamped after the last surviving joint (jaw) reading lost the readings
             # that sync them: the recording ends before them
-            stamps = np.asarray(self._scan_stamps[self.image_topic], dtype=np.int64)
+            stamps = np.asarray(self._scan_stamps.get(self.image_topic, []), dtype=np.int64)
             joints, jaw = self._table
             last = min([t.stamps[-1] for t in ((joints, jaw) if self.has_jaw else (joints,)) if len(t.stamps)]
                        or [np.iinfo(np.int64).max])

@@ -9,12 +9,12 @@ from typing import Iterable
 import cv2
 import numpy as np
 
-from graphtrack.io.bag import (COMPRESSED_TOPIC, COMPRESSED_TYPE, IMAGE_TOPIC, IMAGE_TYPE, JOINT_TYPE, jaw_topic,
-                               joint_topic, to_ns)
+from graphtrack.io.bag import COMPRESSED_TOPIC, COMPRESSED_TYPE, IMAGE_TOPIC, IMAGE_TYPE, JOINT_TYPE, to_ns
+from graphtrack.io.topics import jaw_topics, joint_topics
 
 
 def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, image_format: str = "png",
-              arm: str = "PSM1", chunk_compression: str | None = None) -> int:
+              arm: str = "PSM1", chunk_compression: str | None = None, dvrk_version: int = 1) -> int:
     """Write a ROS 1 bag in the sequence format, streaming (one frame in memory at a time).
 
     Parameters
@@ -25,6 +25,9 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
     compressed : write ``/stereo/left/image/compressed`` (CompressedImage, ``image_format``
         "png" or "jpeg") instead of raw ``rgb8`` Images on ``/stereo/left/image``.
     chunk_compression : None, "bz2" or "lz4" (bag-level compression).
+    arm, dvrk_version : the joint and jaw topics: ``/dvrk/<arm>/state_joint_current`` and
+        ``/dvrk/<arm>/state_jaw_current`` (1), or ``/<arm>/measured_js`` and
+        ``/<arm>/jaw/measured_js`` (2).
 
     Every message's header stamp and bag record time is the frame's stamp.
     Returns the number of frames written.
@@ -32,6 +35,9 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
+    if dvrk_version not in (1, 2):
+        raise ValueError(f"dvrk_version must be 1 or 2, got {dvrk_version!r}")
+    joint_topic, jaw_topic = joint_topics(arm)[dvrk_version - 1], jaw_topics(arm)[dvrk_version - 1]
     if image_format not in ("png", "jpeg", "jpg"):
         raise ValueError(f"image_format must be png or jpeg, got {image_format!r}")
     ts = get_typestore(Stores.ROS1_NOETIC)
@@ -44,7 +50,7 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
     with writer:
         img_type = COMPRESSED_TYPE if compressed else IMAGE_TYPE
         c_img = writer.add_connection(COMPRESSED_TOPIC if compressed else IMAGE_TOPIC, img_type, typestore=ts)
-        c_joint = writer.add_connection(joint_topic(arm), JOINT_TYPE, typestore=ts)
+        c_joint = writer.add_connection(joint_topic, JOINT_TYPE, typestore=ts)
         c_jaw = None
         for f in frames:
             t = to_ns(float(f.stamp))
@@ -70,7 +76,7 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
             jaw = float(getattr(f, "jaw", float("nan")))
             if math.isfinite(jaw):
                 if c_jaw is None:
-                    c_jaw = writer.add_connection(jaw_topic(arm), JOINT_TYPE, typestore=ts)
+                    c_jaw = writer.add_connection(jaw_topic, JOINT_TYPE, typestore=ts)
                 writer.write(c_jaw, t, ts.serialize_ros1(_joint_state(T, hdr, [jaw]), JOINT_TYPE))
             n += 1
     return n

@@ -44,6 +44,7 @@ from graphtrack.io.bag import BagSource
 from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
 from graphtrack.io.labels import read_labels
+from graphtrack.io.topics import TopicSelection
 
 REQUIRED = ("robot.json", "camera_calibration.yaml", "handeye.yaml")
 
@@ -175,7 +176,7 @@ def _default_robot_loader(path: Path):
     return load_robot_json(path)
 
 
-def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource, list[str]]:
+def find_source(path: Path, topics: TopicSelection = TopicSelection()) -> tuple[BagSource | FolderSource, list[str]]:
     """Pick the recording in a sequence folder: exactly one bag, else the folder form."""
     bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
     bags += sorted(p for p in path.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file())
@@ -186,7 +187,7 @@ def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource
     if len(bags) == 1:
         if folder_form:
             notes.append(f"{path}: both {bags[0].name} and frames/ or video.mp4; using the bag")
-        return BagSource(bags[0], arm), notes
+        return BagSource(bags[0], topics), notes
     if folder_form:
         if bags:
             notes.append(f"{path}: {len(bags)} bags; using the folder form (frames/ or video.mp4)")
@@ -199,7 +200,7 @@ def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource
 
 
 def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | None = None,
-                   expected_joints: int | None = None, arm: str = "PSM1") -> Recording:
+                   expected_joints: int | None = None, topics: TopicSelection = TopicSelection()) -> Recording:
     """Open and validate a sequence folder; no image is read.
 
     Parameters
@@ -209,7 +210,10 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         ``graphtrack.robot.description.load_robot_json``.
     expected_joints : DH joints per reading; default: ``robot.n_dh``, else the
         number of ``DH_params`` in robot.json.
-    arm : the arm whose topics and handeye keys are read (``PSM1``).
+    topics : the arm (its joint topics and handeye.yaml keys) and topic overrides; by
+        default the arm is the bag's only arm (the folder form: handeye.yaml's only arm),
+        the topics follow the dVRK 1.x or 2.x naming the bag uses
+        (:mod:`graphtrack.io.topics`).
 
     Raises InputError (one line naming the file / topic / field) for
     whole-recording problems; see the module docstring.
@@ -227,10 +231,10 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         n_dh = getattr(robot, "n_dh", None)
         n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
-    handeye = load_handeye(path / "handeye.yaml", arm)
     labels = (read_labels(path / "labels.csv", (calibration.left.height, calibration.left.width))
               if (path / "labels.csv").is_file() else None)
-    source, notes = find_source(path, arm)
+    source, notes = find_source(path, topics)
+    handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
     if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:
         raise InputError(f"{path / 'joints.csv'}: rows hold {source.n_columns} joints (q1..q{source.n_columns}) "
                          f"but {path / 'robot.json'} has {n_joints} DH joints")
