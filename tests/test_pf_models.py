@@ -127,24 +127,6 @@ def test_absurd_observations_stay_finite(scene, model):
     assert np.all(np.isfinite(ll))
 
 
-def test_lean_limb_lines_match_cylinder_projection():
-    from graphtrack.estimate.pf.projection import limb_lines, line_angles
-    from graphtrack.geometry.cylinder import project_cylinder
-
-    rng = np.random.default_rng(0)
-    p0 = rng.standard_normal((20000, 3)) * 0.1 + [0, 0, 0.1]
-    d = rng.standard_normal((20000, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    K = np.array([[1000.0, 0, 640], [0, 1000, 512], [0, 0, 1]])
-    a = project_cylinder(p0, d, 0.004, K)
-    rho, cos, sin, valid = limb_lines(p0.T, d.T, 0.004, K)
-    theta = line_angles(cos, sin)
-    np.testing.assert_array_equal(a[2], valid)
-    v = a[2]
-    np.testing.assert_allclose(rho.T[v], a[0][v], rtol=1e-12, atol=1e-6)
-    np.testing.assert_allclose(theta.T[v], a[1][v], atol=1e-12)
-
-
 def test_particle_rotations_match_scipy():
     """Component-major Rodrigues against scipy's rotation vectors, small angles included."""
     from scipy.spatial.transform import Rotation

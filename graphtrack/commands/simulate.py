@@ -24,7 +24,13 @@ def add_parser(sub) -> None:
     p.add_argument("--size", default="540x960", help="image size HxW (default 540x960)")
     p.add_argument("--compressed", action="store_true", help="PNG CompressedImage messages in the bag")
     p.add_argument("--form", default="bag", help="bag (ROS 1 bag) or folder (frames/ + joints.csv)")
-    p.add_argument("--randomize", action="store_true", help="domain randomisation (detector training)")
+    p.add_argument("--randomize", action="store_true",
+                   help="randomized, harder recording (look, occlusions, out-of-view, smoke, blur, lighting, "
+                        "hand-eye error up to 10 mm / 5 deg; writes scenario.json; "
+                        "docs/randomized-recordings.md): robustness benchmarks and detector training")
+    p.add_argument("--stereo", action="store_true",
+                   help="also render the right camera (5 mm baseline, 2 deg vergence): right images, "
+                        "K2/D2/R/T, labels_right.csv; the left recording is unchanged")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -34,6 +40,6 @@ def run(args) -> int:
 
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
-                   progress=args.progress)
+                   progress=args.progress, stereo=args.stereo)
     print(f"wrote {out}")
     return 0

@@ -28,7 +28,9 @@ class Frame:
     index: 0-based frame number (bag order); stamp: seconds;
     image: raw (distorted) left image, H x W x 3 uint8 BGR (None if not decoded);
     joints: the DH joints' readings q~ (n,) in rad / m; jaw: jaw opening (rad),
-    NaN when the tool has no gripper.
+    NaN when the tool has no gripper; image_right: the raw right image matched
+    to this frame by stamp (stereo recordings), None when the recording is mono
+    or this frame's right image is missing or corrupt.
     """
 
     index: int
@@ -36,6 +38,7 @@ class Frame:
     image: np.ndarray | None
     joints: np.ndarray
     jaw: float = float("nan")
+    image_right: np.ndarray | None = None
 
     @property
     def q(self) -> np.ndarray:

@@ -20,13 +20,14 @@ import numpy as np
 
 from factors.edge_bias import (bias_key, bias_prior_factor, bias_sigmas, bias_transition_factor,
                                reference_direction, transition)
-from factors.limb import LimbPairing, ShaftAxis
+from factors.limb import LimbPairing
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import shaft_pixels_factor
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
+from graphtrack.geometry.cylinder import ShaftAxis
 from graphtrack.robot.features import base_features, marker_discs
 
 #: (b, w) <-> gtsam (omega, v) reordering

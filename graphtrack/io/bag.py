@@ -11,6 +11,12 @@ streamed in two passes so that a 10 GB bag never sits in memory:
 2. the left images (``/stereo/left/image``, else ``/stereo/left/image/compressed``)
    in bag order, decoded one at a time; each takes the joint and jaw messages
    whose header stamps are nearest its own header stamp (ties: the earlier one).
+   Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
+   alongside, in bag order, with a small look-ahead; a left image takes the right
+   image whose header stamp is nearest its own if they differ by at most
+   ``RIGHT_SYNC_S`` (left and right stamps must increase in bag order). A left
+   image without one (missing, or not decodable) gets ``image_right`` None and
+   is counted in ``BagSource.right_skips``.
 
 A message whose header stamp is zero (never set by its publisher) uses its bag
 record time instead.
@@ -39,9 +45,12 @@ from graphtrack.errors import FrameError, InputError
 from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
 
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
+RIGHT_IMAGE_TOPIC = "/stereo/right/image"
+RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
+RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
 
 
 # -- stamps and image decoding -----------------------------------------------------------
@@ -180,6 +189,8 @@ class BagSource:
         self._table: tuple[JointTable, JointTable] | None = None
         self._stamps: np.ndarray | None = None
         self._scan_images: list[int] | None = None
+        self.right_topic: str | None = None
+        self.right_skips = {"missing": 0, "corrupt": 0}
         try:
             topics = self._indexed_topics()
             self.scan = False
@@ -253,6 +264,14 @@ class BagSource:
             if t in topics and topics[t][0] != JOINT_TYPE:
                 raise InputError(f"{self.path}: topic {t} has type {topics[t][0]}, expected {JOINT_TYPE}")
         self.has_jaw = topics.get(self.jaw_topic, (None, 0))[1] > 0
+        for topic, typ in ((RIGHT_IMAGE_TOPIC, IMAGE_TYPE), (RIGHT_COMPRESSED_TOPIC, COMPRESSED_TYPE)):
+            if topic in topics and topics[topic][1] > 0:
+                if topics[topic][0] != typ:
+                    self.warnings.append(f"{self.path}: topic {topic} has type {topics[topic][0]}, expected "
+                                         f"{typ}; right images ignored")
+                else:
+                    self.right_topic, self.right_type = topic, typ
+                break
         if self.scan:
             empty = ([], [])
             self._table = (JointTable.build(*self._scan_joints.get(self.joint_topic, empty)),
@@ -298,19 +317,21 @@ class BagSource:
         return self._table
 
     # -- pass 2: images -----------------------------------------------------------------
-    def _image_messages(self) -> Iterator[tuple[int, int, bytes, object]]:
-        """(bag time ns, raw bytes, deserializer) per left image, in bag order."""
+    def _image_messages(self, topic: str | None = None) -> Iterator[tuple[int, bytes, object]]:
+        """(bag time ns, raw bytes, deserializer) per image of ``topic`` (default: the left
+        images), in bag order."""
+        topic = topic or self.image_topic
         if self.scan:
             from graphtrack.io.bag1scan import Bag1Scan
             from rosbags.typesys import Stores, get_typestore
 
             store = get_typestore(Stores.ROS1_NOETIC)
             for c, t, raw in Bag1Scan(self.path).messages():
-                if c.topic == self.image_topic:
+                if c.topic == topic:
                     yield t, raw, store.deserialize_ros1
             return
         with self._reader() as r:
-            conns = [c for c in r.connections if c.topic == self.image_topic]
+            conns = [c for c in r.connections if c.topic == topic]
             yield from ((t, raw, r.deserialize) for _, t, raw in r.messages(connections=conns))
 
     def frames(self, start: int = 0):
@@ -324,6 +345,7 @@ class BagSource:
         joints, jaw = self.joint_tables()
         index = -1
         it = self._image_messages()
+        right = _RightMatcher(self, self._image_messages(self.right_topic)) if self.right_topic else None
         while True:
             try:
                 item = next(it)
@@ -355,7 +377,8 @@ class BagSource:
                 jaw_value = float(j[0]) if j.size else float("nan")
             else:
                 jaw_value = float("nan")
-            yield Frame(index, stamp_ns / 1e9, image, joints.nearest(stamp_ns).copy(), jaw_value)
+            yield Frame(index, stamp_ns / 1e9, image, joints.nearest(stamp_ns).copy(), jaw_value,
+                        image_right=None if right is None else right.image(stamp_ns))
 
     def stamps(self) -> np.ndarray:
         """Header stamps (s) of the left images, in frame order (one extra pass, no decoding)."""
@@ -365,6 +388,50 @@ class BagSource:
                 self._stamps = np.array([_raw_header_ns(raw, self.ros2) or t
                                          for _, t, raw in r.messages(connections=conns)], dtype=np.int64)
         return self._stamps / 1e9
+
+
+class _RightMatcher:
+    """Right images matched to left stamps in one forward pass (module doc, pass 2)."""
+
+    def __init__(self, source: BagSource, messages):
+        self.src, self.it, self.buf, self.done = source, messages, [], False
+        self.tol = int(RIGHT_SYNC_S * 1e9)
+
+    def _pull(self) -> None:
+        try:
+            t, raw, deser = next(self.it)
+        except StopIteration:
+            self.done = True
+            return
+        except Exception as e:  # noqa: BLE001 - damaged right data: the rest is left-only
+            self.done = True
+            self.src.warnings.append(f"{self.src.path}: {self.src.right_topic} unreadable ({_one_line(e)}); "
+                                     "later frames are left-only")
+            return
+        ns = _raw_header_ns(raw, self.src.ros2) if len(raw) >= 12 else 0
+        try:  # deserialized now: the reader behind ``deser`` closes when the messages end
+            msg = deser(raw, self.src.right_type)
+        except Exception:  # noqa: BLE001 - decoded below as corrupt
+            msg = None
+        self.buf.append((ns or t, msg))
+
+    def image(self, t_ns: int):
+        """The decoded right image for left stamp t_ns, or None (counted in right_skips)."""
+        while not self.done and (not self.buf or self.buf[-1][0] <= t_ns + self.tol):
+            self._pull()
+        while self.buf and self.buf[0][0] < t_ns - self.tol:
+            self.buf.pop(0)
+        best = min(range(len(self.buf)), key=lambda k: abs(self.buf[k][0] - t_ns), default=None)
+        if best is None or abs(self.buf[best][0] - t_ns) > self.tol:
+            self.src.right_skips["missing"] += 1
+            return None
+        _, msg = self.buf[best]
+        del self.buf[:best + 1]
+        try:
+            return decode_image(msg, self.src.right_type, str(self.src.path))
+        except Exception:  # noqa: BLE001 - a corrupt right image: left-only for this frame
+            self.src.right_skips["corrupt"] += 1
+            return None
 
 
 def _one_line(e: BaseException) -> str:

@@ -25,6 +25,12 @@ Per-frame problems are YIELDED (not raised) as
 - ``flat_image``: the image's bottom quarter is one flat colour and the rest is not (a
   damaged JPEG that decodes with a flat tail).
 
+Stereo recordings (right images plus K2, D2, R, T): each Frame's ``image_right``
+holds the right image matched by stamp (folder form: the same file name in
+frames_right/); a missing, corrupt or wrongly sized right image gives None and
+is counted in ``rec.right_skips`` (and a line in ``rec.warnings``): that frame is
+left-only. ``rec.labels_right`` holds labels_right.csv.
+
 Truncated ROS 1 bags (index missing or damaged) are read up to the damage:
 all complete frames are yielded, ``rec.truncated`` is True and ``rec.warnings``
 holds a line for the user. See :mod:`graphtrack.io.bag`.
@@ -56,6 +62,7 @@ class Recording:
     path: the sequence folder; calibration: intrinsics (left, optional right);
     handeye: nominal camera-from-base 4x4 (METRES); robot: what the robot loader
     returned for robot.json; labels: {frame: (u, v) px} from labels.csv, or None;
+    labels_right: the same from labels_right.csv (right raw image), or None;
     n_joints: the DH joint count every reading must have (None: not checked);
     source: the BagSource or FolderSource behind the frames.
     """
@@ -68,14 +75,39 @@ class Recording:
     n_joints: int | None
     source: BagSource | FolderSource
     notes: list[str] = field(default_factory=list)
+    labels_right: dict[int, np.ndarray] | None = None
+    right_size_skips: int = 0
 
     def __len__(self) -> int:
         return len(self.source)
 
     @property
     def warnings(self) -> list[str]:
-        """Lines for the user: recording choices made, damage found, messages skipped."""
-        return self.notes + list(self.source.warnings)
+        """Lines for the user: recording choices made, damage found, messages skipped
+        (including, after iterating, the frames whose right image was unusable)."""
+        lines = self.notes + list(self.source.warnings)
+        sk = self.right_skips
+        if sum(sk.values()):
+            lines.append(f"{self.path}: {sum(sk.values())} frames without a usable right image "
+                         f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
+        return lines
+
+    @property
+    def stereo(self) -> bool:
+        """True when the recording has right images and the right camera's calibration."""
+        return self.has_right_images and self.calibration.right is not None
+
+    @property
+    def has_right_images(self) -> bool:
+        src = self.source
+        return (src.right_files is not None) if isinstance(src, FolderSource) else src.right_topic is not None
+
+    @property
+    def right_skips(self) -> dict[str, int]:
+        """Frames yielded so far with image_right None although the recording is stereo:
+        {"missing": no right image within the stamp tolerance / no file, "corrupt": does not
+        decode, "image_size": differs from ImageSize}."""
+        return {**self.source.right_skips, "image_size": self.right_size_skips}
 
     @property
     def kind(self) -> str:
@@ -137,6 +169,9 @@ class Recording:
             elif (why := flat_image(f.image)) is not None:
                 yield FrameError(f.index, "flat_image", why)
             else:
+                if f.image_right is not None and f.image_right.shape[:2] != (h, w):
+                    f.image_right = None
+                    self.right_size_skips += 1
                 yield f
 
 
@@ -231,12 +266,13 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         n_dh = getattr(robot, "n_dh", None)
         n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
-    labels = (read_labels(path / "labels.csv", (calibration.left.height, calibration.left.width))
-              if (path / "labels.csv").is_file() else None)
+    size = (calibration.left.height, calibration.left.width)
+    labels = read_labels(path / "labels.csv", size) if (path / "labels.csv").is_file() else None
+    labels_r = read_labels(path / "labels_right.csv", size) if (path / "labels_right.csv").is_file() else None
     source, notes = find_source(path, topics)
     handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
     if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:
         raise InputError(f"{path / 'joints.csv'}: rows hold {source.n_columns} joints (q1..q{source.n_columns}) "
                          f"but {path / 'robot.json'} has {n_joints} DH joints")
     return Recording(path, calibration, handeye, robot, labels, n_joints, source,
-                     notes=notes)
+                     notes=notes, labels_right=labels_r)
