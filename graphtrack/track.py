@@ -9,7 +9,6 @@ metrics.json; bad recordings raise InputError before anything is written.
 from __future__ import annotations
 
 import dataclasses
-import json
 import sys
 import time
 from collections import Counter
@@ -22,13 +21,14 @@ from tqdm import tqdm
 from graphtrack.detect import make_detector, observe
 from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.errors import FrameError, InputError
-from graphtrack.estimate import estimator_class
+from graphtrack.estimate import estimator_class, make_estimator
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.estimate.options import EstimatorOptions
 from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
 from graphtrack.eval.overlay import OverlayWriter
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
+from graphtrack.io.run_output import write_json
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
 from graphtrack.io.topics import TopicSelection
@@ -91,7 +91,7 @@ class Pipeline:
             # estimators see full-size pixels
             kw.update(markers=det.markers, gate_scale=1.0 / self.scale)
             self.detector = make_detector(det.detector, **det.detector_keywords())
-        self.estimator = cls(ctx, **kw)
+        self.estimator = make_estimator(options.estimator, ctx, **kw)
         self.last_E = ctx.handeye.copy()
         self.last_std = None          # nothing known before the first estimate: widest gate
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
@@ -215,17 +215,37 @@ def _warn(message: str, quiet: bool) -> None:
         print(f"graphtrack: {message}", file=sys.stderr)
 
 
-def _bad_joints(frame: Frame, n_joints: int) -> str | None:
-    """Why a decoded frame's joint vector cannot be tracked (its skip reason), or None."""
-    if len(frame.q) != n_joints:
-        return "joint_count"
-    return None if np.all(np.isfinite(frame.q)) else "nan_joints"
+def _untrackable(frame: Frame, n_joints: int, last_stamp: float | None) -> FrameError | None:
+    """Why a decoded frame cannot be tracked (a FrameError with its skip reason), or None:
+    a joint vector of another length or with NaN, or a stamp not after the last tracked one."""
+    if len(frame.q) != n_joints or not np.all(np.isfinite(frame.q)):
+        return FrameError(frame.index, "joint_count" if len(frame.q) != n_joints else "nan_joints",
+                          f"joint vector has {len(frame.q)} values (finite: {bool(np.all(np.isfinite(frame.q)))}), "
+                          f"expected {n_joints}")
+    if not (np.isfinite(frame.stamp) and (last_stamp is None or frame.stamp > last_stamp)):
+        return FrameError(frame.index, "stamp_order",
+                          f"stamp {frame.stamp!r} is not after the previous frame's {last_stamp!r}")
+    return None
+
+
+class SkipCounter(Counter):
+    """Skipped frames per reason, and the first message of each (metrics.json ``skip_examples``)."""
+
+    def __init__(self):
+        super().__init__()
+        self.examples: dict[str, str] = {}
+
+    def skip(self, error: FrameError, quiet: bool) -> None:
+        """Count a skipped frame, keep its reason's first message, warn unless quiet."""
+        self[error.reason] += 1
+        self.examples.setdefault(error.reason, str(error))
+        _warn(f"warning: skipping {error}", quiet)
 
 
 @dataclass
 class _Run:
     """What one tracking run has collected so far: per tracked frame its index, tip
-    pixel and (index, stamp, q, total ms) row; per-stage and per-frame milliseconds;
+    pixel and (index, stamp, q, total ms, E) row; per-stage and per-frame milliseconds;
     the skip reasons; frames read (tracked or skipped)."""
 
     frames: list = field(default_factory=list)
@@ -233,16 +253,21 @@ class _Run:
     rows: list = field(default_factory=list)
     stage_ms: dict = field(default_factory=lambda: {s: [] for s in STAGES})
     frame_ms: list = field(default_factory=list)
-    skipped: Counter = field(default_factory=Counter)
+    skipped: SkipCounter = field(default_factory=SkipCounter)
     read: int = 0
 
-    def add(self, frame: Frame, tip: np.ndarray, ms: dict, total_ms: float, frame_ms: float) -> None:
+    @property
+    def last_stamp(self) -> float | None:
+        return self.rows[-1][1] if self.rows else None
+
+    def add(self, frame: Frame, E: np.ndarray, tip: np.ndarray, ms: dict, total_ms: float,
+            frame_ms: float) -> None:
         for s in STAGES:
             self.stage_ms[s].append(ms.get(s, 0.0))
         self.frame_ms.append(frame_ms)
         self.frames.append(frame.index)
         self.tips.append(tip)
-        self.rows.append((frame.index, frame.stamp, frame.q, total_ms))
+        self.rows.append((frame.index, frame.stamp, frame.q, total_ms, E))
 
     def summary(self, wall: float) -> dict:
         """Frame counts, median ms per stage, fps over the wall time and the steady state:
@@ -278,10 +303,11 @@ def _refine(pipe: Pipeline, run: _Run, writer: TrajectoryWriter, extra: list[str
     if refined is None:
         return
     run.tips, rows = [], []
-    for (fi, stamp, q, ms), est in zip(run.rows, refined):
-        tip = tip_pixel(pipe.ctx, q, est.E)
+    for (fi, stamp, q, ms, E0), est in zip(run.rows, refined):
+        E = est.E if np.all(np.isfinite(est.E)) else E0   # a non-finite refinement keeps the streamed pose
+        tip = tip_pixel(pipe.ctx, q, E)
         run.tips.append(tip)
-        rows.append((fi, stamp, est.E, tip, ms, _extras(est, extra)))
+        rows.append((fi, stamp, E, tip, ms, _extras(est, extra)))
     writer.rewrite_all(rows)
 
 
@@ -307,18 +333,18 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     t_wall = time.perf_counter()
     with TrajectoryWriter(out, extra_columns=extra) as writer:
         for item, t_decode, t0 in _frames(rec, max_frames, run, bar):
+            if not isinstance(item, FrameError):
+                item = _untrackable(item, rec.robot.n_joints, run.last_stamp) or item
             if isinstance(item, FrameError):
-                run.skipped[item.reason] += 1
-                _warn(f"warning: skipping {item}", quiet)
+                run.skipped.skip(item, quiet)
                 continue
             frame = item
-            reason = _bad_joints(frame, rec.robot.n_joints)
-            if reason is not None:
-                run.skipped[reason] += 1
-                _warn(f"warning: skipping frame {frame.index}: joint vector has {len(frame.q)} "
-                      f"finite={bool(np.all(np.isfinite(frame.q)))} values, expected {rec.robot.n_joints}", quiet)
-                continue
             est, det, obs, ms = pipe.step(frame)
+            if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
+                run.skipped.skip(FrameError(frame.index, "nonfinite_estimate",
+                                            "the estimator returned a non-finite pose"), quiet)
+                pipe.last_E, pipe.last_std = ctx.handeye.copy(), None
+                continue
             t = time.perf_counter()
             tip = tip_pixel(ctx, frame.q, est.E)
             total_ms = t_decode + sum(ms.values())
@@ -327,7 +353,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                 overlay.write(frame, est, det, obs, tip)
             ms["write"] = 1e3 * (time.perf_counter() - t)
             ms["decode"] = t_decode
-            run.add(frame, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
+            run.add(frame, est.E, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
         _refine(pipe, run, writer, extra)
     wall = time.perf_counter() - t_wall
     if bar is not None:
@@ -336,7 +362,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         overlay.close()
     result = _result(path, out, options, rec, ctx, run)
     result.update(run.summary(wall))
-    (out / "metrics.json").write_text(json.dumps(result, indent=2))
+    write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
 
 
@@ -344,7 +370,8 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
     """metrics.json's run description, skip counts, tip metrics (labels.csv) and truth metrics (truth.csv)."""
     result = {"estimator": options.estimator, "observation": options.observation,
               "detector": options.detection.detector, "frames_tracked": len(run.frames),
-              "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values()))}
+              "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values())),
+              "frames_total": run.read, "skip_examples": run.skipped.examples}
     if rec.labels is not None:
         tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
         result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))

@@ -16,6 +16,8 @@ from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.estimate import ESTIMATORS
 from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
+from graphtrack.errors import InputError
+from graphtrack.io.run_output import prepare_run_dir, require_tracked
 from graphtrack.track import TrackOptions, track
 
 FORMATTER = argparse.ArgumentDefaultsHelpFormatter
@@ -68,6 +70,8 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
     add_threads_argument(p)
     add_source_arguments(p)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace another run's files in --out (refused otherwise)")
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
@@ -87,9 +91,14 @@ def options_from_args(args) -> TrackOptions:
 
 
 def run(args) -> int:
-    result = track(args.sequence, args.out, options_from_args(args), video=args.video,
+    if args.max_frames is not None and args.max_frames < 1:
+        raise InputError("--max-frames must be at least 1")
+    options = options_from_args(args)
+    prepare_run_dir(args.out, overwrite=args.overwrite)
+    result = track(args.sequence, args.out, options, video=args.video,
                    progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,
                    topics=source_from_args(args))
+    require_tracked(result, args.out)   # no tracked frame: exit status 2, never 0
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))

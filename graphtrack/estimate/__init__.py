@@ -22,6 +22,9 @@ ESTIMATORS = {
     "batch": ("graphtrack.estimate.batch", "BatchEstimator"),
 }
 
+#: estimators that cannot run without a shaft feature in robot.json
+NEEDS_SHAFT = {"pf": "particle filter"}
+
 
 def estimator_class(name: str) -> type:
     """The class of estimator ``name`` (unknown names raise InputError)."""
@@ -33,4 +36,8 @@ def estimator_class(name: str) -> type:
 
 def make_estimator(name: str, ctx, **options):
     """Instantiate estimator ``name`` with the tracking context and its options."""
-    return estimator_class(name)(ctx, **options)
+    cls = estimator_class(name)
+    if name in NEEDS_SHAFT and not ctx.robot.shaft_features:
+        raise InputError(f"robot.json has no shaft_features: the {NEEDS_SHAFT[name]} needs the shaft's "
+                         "cylinder (its silhouette edges are what it observes)")
+    return cls(ctx, **options)

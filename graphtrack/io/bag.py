@@ -98,6 +98,35 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     return cv2.cvtColor(img, conv) if conv is not None else img.copy()
 
 
+#: noise_span's window (px) and threshold (mean |difference| of neighbouring green values)
+NOISE_WINDOW_PX, NOISE_LEVEL = 512, 40.0
+
+
+def noise_span(image: np.ndarray) -> str | None:
+    """Where a raw image holds random bytes (damaged bag data), or None.
+
+    Raw messages carry no checksum, so overwritten bytes decode as an image. In
+    row-major pixel order, every window of ``NOISE_WINDOW_PX`` pixels gets the
+    mean |g[i+1] - g[i]| of its green values at every 4th i: uniform random
+    bytes give ~85, camera images (smooth at the pixel scale) well under 20; a
+    window above ``NOISE_LEVEL`` in an image whose median window is under half
+    of it is damage (an image noisy all over is taken as a picture). Any run of
+    >= 2 windows of bytes (3 KB of rgb8) covers one whole window.
+    """
+    g = np.ascontiguousarray(image[..., 1] if image.ndim == 3 else image).reshape(-1)
+    n = (g.size // NOISE_WINDOW_PX) * NOISE_WINDOW_PX
+    if n == 0:
+        return None
+    g = g[:n].reshape(-1, NOISE_WINDOW_PX)
+    d = np.abs(g[:, 0::4].astype(np.int16) - g[:, 1::4]).mean(axis=1)
+    bad = np.flatnonzero(d > NOISE_LEVEL)
+    if bad.size == 0 or np.median(d) > NOISE_LEVEL / 2:   # noisy all over: a picture of noise
+        return None
+    w = image.shape[1]
+    r0, r1 = bad[0] * NOISE_WINDOW_PX // w, ((bad[-1] + 1) * NOISE_WINDOW_PX - 1) // w
+    return f"image rows {r0}..{r1} hold random-looking bytes (damaged image data)"
+
+
 def _raw_header_ns(raw: bytes, ros2: bool) -> int:
     """Header stamp straight from serialized bytes (no image decoding): ROS 1 seq,sec,nsec;
     CDR: 4-byte encapsulation, then sec,nanosec."""
@@ -337,6 +366,9 @@ class BagSource:
                 raise
             except Exception as e:  # noqa: BLE001 - undecodable message or image
                 yield FrameError(index, "corrupt_image", f"{self.image_topic}: {_one_line(e)}")
+                continue
+            if self.image_type == IMAGE_TYPE and (why := noise_span(image)) is not None:
+                yield FrameError(index, "corrupt_image", f"{self.image_topic}: {why}")
                 continue
             if self.has_jaw:
                 j = jaw.nearest(stamp_ns)
