@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from factors.synthetic import make_scene, sequence  # noqa: E402
 from graphtrack.detect.base import Observation  # noqa: E402
-from graphtrack.estimate.base import Frame  # noqa: E402
+from graphtrack.io.frame import Frame  # noqa: E402
 from graphtrack.estimate.batch import BatchEstimator  # noqa: E402
-from graphtrack.estimate.context import TrackingContext  # noqa: E402
+from graphtrack.io.context import TrackingContext  # noqa: E402
 from graphtrack.estimate.graph import left_error  # noqa: E402
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator  # noqa: E402
 

@@ -107,9 +107,10 @@ def long_recording(size=(1080, 1920), frames=1800) -> Path:
 
 
 def time_track(seq: Path, detector: str, estimator: str, frames: int) -> dict:
+    from graphtrack.detect.options import DetectionOptions
     from graphtrack.track import TrackOptions, track
 
-    opts = TrackOptions(estimator=estimator, detector=detector, observation="line-intensities")
+    opts = TrackOptions(estimator=estimator, detection=DetectionOptions(detector=detector))
     out = DATA / "out"
     return track(seq, out, opts, progress=False, quiet=True, max_frames=frames)
 

@@ -5,12 +5,20 @@ arguments and ``set_defaults(func=run)``) and ``run(args) -> int``. Bad input
 (:class:`~graphtrack.errors.InputError`) is printed as one line and exits 2;
 no traceback reaches the user for it. Before any numerical library loads, the
 process's thread pools are set to ``--threads`` (default 1; :mod:`graphtrack.threads`).
+
+Exit status: 0 success; 2 bad input, including a ``track``/``refine`` run that
+tracked no frame (every frame skipped: the message gives the skip counts and
+the first skipped frame; metrics.json is still written) and a full disk;
+1 an internal error (a bug: one line asking for a report; set
+``GRAPHTRACK_DEBUG=1`` for the traceback); 130 interrupted.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+from pathlib import Path
 
 from graphtrack.commands.common import threads_from_args
 from graphtrack.errors import InputError
@@ -74,6 +82,17 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("graphtrack: interrupted (results written so far are kept)", file=sys.stderr)
         return 130
+    except Exception as e:  # noqa: BLE001 - last resort: a bug, not bad input
+        if os.environ.get("GRAPHTRACK_DEBUG"):
+            raise
+        where = e.__traceback__
+        while where is not None and where.tb_next is not None:
+            where = where.tb_next
+        at = f" at {Path(where.tb_frame.f_code.co_filename).name}:{where.tb_lineno}" if where else ""
+        msg = (str(e).strip().splitlines() or [""])[0][:200]
+        print(f"graphtrack: internal error: {type(e).__name__}{at}: {msg} (a bug: please report it with "
+              "the command line; GRAPHTRACK_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -1,4 +1,6 @@
-"""Errors that reach the user as one line and exit status 2."""
+"""Errors that reach the user as one line and exit status 2, and the checks that raise them."""
+
+import math
 
 
 class InputError(Exception):
@@ -21,3 +23,31 @@ class FrameError(Exception):
         super().__init__(f"frame {frame}: {message}")
         self.frame = frame
         self.reason = reason
+
+
+def read_text(path) -> str:
+    """The UTF-8 text of a configuration or CSV file; InputError naming the file when it
+    is missing, unreadable, or not UTF-8 (with the byte offset of the first bad byte)."""
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise InputError(f"{path}: not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
+
+
+def is_number(v) -> bool:
+    """A finite real number as a parser of JSON/YAML gives it: an int (within float range)
+    or a float, never a bool or a string."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    if isinstance(v, int):
+        return abs(v) <= 1e300
+    return math.isfinite(v)

@@ -5,7 +5,7 @@ import pytest
 
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.divergence import DivergenceMonitor, misfit
 from graphtrack.estimate.pf.synthetic import make_scene, pose_error
 from graphtrack.estimate.startup import Scorer, global_search
@@ -55,7 +55,7 @@ def test_smoother_starts_from_10mm_5deg():
     scene = make_scene(seed=2, b_mm=10.0, w_deg=5.0)
     errs = {}
     for search in (False, True):
-        est = make_estimator("smoother", scene.ctx, observation=MODEL, search=search)
+        est = make_estimator("smoother", scene.ctx, search=search)
         for t in range(10):
             fr, q = _frame(scene, t)
             e = est.step(fr, _obs(scene, q, t))
@@ -90,7 +90,7 @@ def test_monitor_quiet_on_correct_lock_fires_on_wrong_one():
 @pytest.mark.parametrize("name", ["pf", "smoother"])
 def test_reacquires_after_blank_and_never_nan(name):
     scene = make_scene(seed=5, b_mm=8.0, w_deg=4.0)
-    est = make_estimator(name, scene.ctx, observation=MODEL, **({"particles": 500} if name == "pf" else {}))
+    est = make_estimator(name, scene.ctx, **({"particles": 500} if name == "pf" else {}))
     errs = []
     for t in range(75):
         fr, q = _frame(scene, t)

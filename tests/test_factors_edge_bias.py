@@ -13,8 +13,8 @@ from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.graph import left_error
 from graphtrack.geometry.cylinder import ShaftAxis, limb_line_coefficients, line_matrix
 from graphtrack.robot.features import base_features
@@ -161,8 +161,7 @@ def test_batch_marginals_with_bias_match_gtsam(every):
     block (23 frames) and a frame without detections."""
     robot, cam, E0, frames = sequence(23, seed=5, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5,
                                       marker_noise=2.0, pixels_per_edge=40)
-    est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities",
-                         edge_bias=True, edge_bias_every=every)
+    est = make_estimator("batch", TrackingContext(robot, cam, E0), edge_bias=True, edge_bias_every=every)
     for f in frames:
         obs = (Observation("line-intensities") if f.index == 7
                else Observation("line-intensities", pixels=f.pixels, markers=f.markers))
@@ -220,8 +219,7 @@ def _batch_errors_with_and_without_bias(robot, cam, E0, frames, observations) ->
     without (False) and with (True) the edge-bias state."""
     errs = {}
     for on in (False, True):
-        est = make_estimator("batch", TrackingContext(robot, cam, E0), observation=observations[0].model,
-                             edge_bias=on, covariance=False)
+        est = make_estimator("batch", TrackingContext(robot, cam, E0), edge_bias=on, covariance=False)
         for f, ob in zip(frames, observations):
             est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), ob)
         out = est.finish()

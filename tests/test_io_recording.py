@@ -492,7 +492,7 @@ def test_folder_video_shorter_than_joints(tmp_path):
     seq = write_meta(tmp_path / "seq")
     write_folder(seq, make_frames(4), video=True)
     with (seq / "joints.csv").open("a") as f:
-        f.write("4,5.0,0,0,0,0,0,0,0.1\n")
+        f.write("4,1700000000.0,0,0,0,0,0,0,0.1\n")
     out = items(open_recording(seq, **NO_ROBOT))
     assert len(out) == 5 and out[4].reason == "corrupt_image" and "video.mp4" in str(out[4])
 

@@ -4,7 +4,7 @@ import pytest
 
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.particle_filter import STD_COLUMNS, ParticleFilter
 from graphtrack.estimate.pf.synthetic import make_scene, pose_error
 
@@ -29,7 +29,7 @@ def run(pf, scene, model, frames, rng, hidden=(), **obs_kw):
 def test_converges_from_3mm_2deg(model):
     scene = make_scene(b_err=(0.003, 0.0, 0.0), w_err_deg=(0.0, 2.0, 0.0))
     assert pose_error(scene.ctx.handeye, scene.E_true)[1] == pytest.approx(2.0)
-    pf = make_estimator("pf", scene.ctx, observation=model, particles=1000, seed=0)
+    pf = make_estimator("pf", scene.ctx, particles=1000, seed=0)
     errs = run(pf, scene, model, range(120), np.random.default_rng(0), pixel_noise=0.0, outliers=0.0)
     final = errs[-10:].mean(0)
     assert final[0] < 0.5 and final[1] < 0.25, final
@@ -39,7 +39,7 @@ def test_estimate_fields_and_determinism():
     scene = make_scene()
     out = []
     for _ in range(2):
-        pf = ParticleFilter(scene.ctx, observation="canny", seed=3)
+        pf = ParticleFilter(scene.ctx, seed=3)
         fr, q = frame(scene, 0)
         est = pf.step(fr, scene.observation(q, "canny", np.random.default_rng(0)))
         out.append(est)
@@ -65,7 +65,7 @@ def test_empty_frames_leave_weights_unchanged():
 def test_hidden_shaft_then_reacquire():
     scene = make_scene(b_err=(0.002, -0.001, 0.0), w_err_deg=(1.0, 0.0, -1.0))
     model = "line-intensities-polar"
-    pf = ParticleFilter(scene.ctx, observation=model, seed=1)
+    pf = ParticleFilter(scene.ctx, seed=1)
     rng = np.random.default_rng(1)
     a = run(pf, scene, model, range(80), rng)
     assert a[-1, 0] < 0.5
@@ -79,7 +79,7 @@ def test_hidden_shaft_then_reacquire():
 
 def test_absurd_observations_never_kill_the_weights():
     scene = make_scene()
-    pf = ParticleFilter(scene.ctx, observation="line-intensities", seed=0)
+    pf = ParticleFilter(scene.ctx, seed=0)
     absurd = [Observation("line-intensities", pixels=[np.full((20, 2), 1e15)],
                           markers=np.array([[-1e9, 1e9]])),
               Observation("line-intensities", pixels=[np.array([[np.nan, np.inf]]), np.zeros((5, 2))]),

@@ -31,7 +31,7 @@ def test_true_pose_scores_highest(scene, model, t):
     q = scene.joints(t)
     obs = scene.observation(q, model, rng, pixel_noise=0.5, outliers=0.05,
                             line_noise=(0.2, 0.002), marker_noise=0.5)
-    pf = ParticleFilter(scene.ctx, observation=model)
+    pf = ParticleFilter(scene.ctx)
     ll = pf.log_likelihood(q, obs, perturbed(scene.x_true))
     assert np.all(np.isfinite(ll))
     assert np.all(ll[0] > ll[1:]), ll - ll[0]
@@ -44,7 +44,7 @@ def test_shaft_only_true_pose_not_worse(scene, model):
     q = scene.joints(0)
     obs = scene.observation(q, model, np.random.default_rng(0), pixel_noise=0.0, outliers=0.0,
                             markers=False)
-    pf = ParticleFilter(scene.ctx, observation=model, markers=False)
+    pf = ParticleFilter(scene.ctx, markers=False)
     ll = pf.log_likelihood(q, obs, perturbed(scene.x_true))
     assert np.all(ll[0] >= ll[1:] - 1e-3)
 
@@ -52,7 +52,7 @@ def test_shaft_only_true_pose_not_worse(scene, model):
 def test_polar_pairing_is_order_free(scene):
     q = scene.joints(0)
     obs = scene.observation(q, "canny", np.random.default_rng(0))
-    pf = ParticleFilter(scene.ctx, observation="canny", markers=False)
+    pf = ParticleFilter(scene.ctx, markers=False)
     h = pf.hypotheses(q, perturbed(scene.x_true))
     a = om.polar_loglik(h["rho"], h["theta"], obs.lines)
     b = om.polar_loglik(h["rho"], h["theta"], obs.lines[::-1])
@@ -115,7 +115,7 @@ def test_invalid_and_empty(scene):
 @pytest.mark.parametrize("model", ["canny", "line-intensities"])
 def test_absurd_observations_stay_finite(scene, model):
     q = scene.joints(0)
-    pf = ParticleFilter(scene.ctx, observation=model)
+    pf = ParticleFilter(scene.ctx)
     if model in POLAR_MODELS:
         obs = Observation(model, lines=np.array([[1e12, 7.0], [np.nan, 0.0], [-1e30, -1e9]]),
                           markers=np.array([[np.inf, 0], [1e9, -1e9]]))

@@ -5,8 +5,8 @@ import pytest
 from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.graph import STD_COLUMNS, left_error
 
 SCENE = make_scene()
@@ -200,7 +200,7 @@ def test_polar_lines_join_the_edge_bias_state_once_settled():
     f = frames[0]
     obs = Observation("line-intensities-polar", lines=f.lines, markers=f.markers)
     for line_bias, n_keys in ((False, 1), (True, 2)):
-        shaft, _ = frame_factor_groups(0, f.q, obs, robot, cam.K, FactorOptions(), "line-intensities-polar", E0,
+        shaft, _ = frame_factor_groups(0, f.q, obs, robot, cam.K, FactorOptions(), E0,
                                        line_bias=line_bias)
         assert len(shaft) == 2 and all(len(fac.keys()) == n_keys for fac in shaft)
 

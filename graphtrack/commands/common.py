@@ -10,14 +10,14 @@ def add_source_arguments(p) -> None:
     """--arm and the topic overrides (bag recordings; the folder form reads only --arm)."""
     g = p.add_argument_group("recording")
     g.add_argument("--arm", choices=ARMS, default=None,
-                   help="the tracked arm: its joint topics and handeye.yaml keys (default: the only arm "
-                        "the recording has)")
+                   help="the tracked arm: its joint topics and handeye.yaml keys (default: %(default)s, the only "
+                        "arm the recording has)")
     g.add_argument("--image-topic", metavar="TOPIC", default=None,
-                   help="left image topic (default: /stereo/left/image, else .../compressed)")
+                   help="left image topic (default: %(default)s, /stereo/left/image, else .../compressed)")
     g.add_argument("--joint-topic", metavar="TOPIC", default=None,
-                   help="joint topic (default: /dvrk/ARM/state_joint_current or dVRK 2.x /ARM/measured_js)")
+                   help="joint topic (default: %(default)s, /dvrk/ARM/state_joint_current or dVRK 2.x /ARM/measured_js)")
     g.add_argument("--jaw-topic", metavar="TOPIC", default=None,
-                   help="jaw topic (default: /dvrk/ARM/state_jaw_current or dVRK 2.x /ARM/jaw/measured_js)")
+                   help="jaw topic (default: %(default)s, /dvrk/ARM/state_jaw_current or dVRK 2.x /ARM/jaw/measured_js)")
 
 
 def source_from_args(args) -> TopicSelection:

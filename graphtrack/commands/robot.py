@@ -10,6 +10,8 @@ back.
 """
 from __future__ import annotations
 
+import argparse
+
 import sys
 from pathlib import Path
 
@@ -44,6 +46,7 @@ def run(args) -> int:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("robot", help="write robot.json from the dVRK's arm and tool configuration files",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        description=__doc__.split("\n\n", 1)[1].replace("``", ""))
     p.add_argument("arm_config", metavar="ARM.json", help="dVRK arm file (joints 1-3), e.g. psm.json")
     p.add_argument("tool_config", metavar="TOOL.json",

@@ -3,7 +3,7 @@
 The method detects the shaft's silhouette edges with SOLD2 (segments + a
 line heatmap H) because Canny fails in low light, at 1-2 frames/s. Here a
 small fully-convolutional net (:mod:`graphtrack.detect.learned_net`) trained
-on domain-randomised simulated frames (:mod:`graphtrack.detect.training`)
+on domain-randomised simulated frames (:mod:`graphtrack.training`)
 predicts the same two outputs at camera rate:
 
 1. the undistorted BGR frame (H x W) is resized by ``scale`` (1/4: 540x960 ->
@@ -96,9 +96,9 @@ def load_weights(path: str | Path | None = None):
         obj = obj["state_dict"]
     if not isinstance(obj, dict) or not obj or not all(isinstance(v, torch.Tensor) for v in obj.values()):
         raise InputError(f"{path}: not a state dict of the learned detector (expected a dict of tensors)")
-    if meta.get("arch", ARCH) != ARCH:
+    if not isinstance(meta.get("arch", ARCH), str) or meta.get("arch", ARCH) != ARCH:
         raise InputError(f"{path}: weights of architecture '{meta.get('arch')}', expected '{ARCH}'")
-    width, stem = int(meta.get("width", 16)), int(meta.get("stem", 8))
+    width, stem = check_meta(meta, path)
     net = LineNet(width, stem)
     try:
         net.load_state_dict(obj, strict=True)
@@ -107,6 +107,22 @@ def load_weights(path: str | Path | None = None):
         raise InputError(f"{path}: weights do not fit the learned detector's architecture "
                          f"({ARCH}, width {width}): {first[:160]}") from None
     return net.eval().fused()
+
+
+#: the largest channel counts a weights file may ask for (the shipped net: width 16, stem 8)
+MAX_WIDTH, MAX_STEM = 256, 128
+
+
+def check_meta(meta: dict, path: Path) -> tuple[int, int]:
+    """(width, stem) from a weights file's metadata, each an int in 1..MAX_*; InputError
+    naming the file and the key otherwise (a width of 10**6 would allocate terabytes)."""
+    out = []
+    for key, default, top in (("width", 16, MAX_WIDTH), ("stem", 8, MAX_STEM)):
+        v = meta.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= top:
+            raise InputError(f"{path}: metadata '{key}' must be an integer in 1..{top}, got {v!r}")
+        out.append(v)
+    return out[0], out[1]
 
 
 def _tls(Q: np.ndarray, wq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

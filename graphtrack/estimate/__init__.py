@@ -4,6 +4,8 @@
 ``make_estimator(name, ctx, **options)`` builds one by name:
 kinematics (baseline), pf (the method's particle filter), smoother (fixed-lag
 factor graph), batch (offline Levenberg-Marquardt over the whole recording).
+``estimator_class(name)`` gives its class (the protocol's class attributes)
+without building it.
 """
 from __future__ import annotations
 
@@ -11,7 +13,8 @@ import importlib
 
 from graphtrack.errors import InputError
 
-#: name -> (module, class)
+#: name -> (module, class); a module is imported only when its estimator is asked for
+#: (the factor-graph estimators need gtsam)
 ESTIMATORS = {
     "kinematics": ("graphtrack.estimate.kinematics", "KinematicsEstimator"),
     "pf": ("graphtrack.estimate.particle_filter", "ParticleFilter"),
@@ -19,10 +22,22 @@ ESTIMATORS = {
     "batch": ("graphtrack.estimate.batch", "BatchEstimator"),
 }
 
+#: estimators that cannot run without a shaft feature in robot.json
+NEEDS_SHAFT = {"pf": "particle filter"}
 
-def make_estimator(name: str, ctx, **options):
-    """Instantiate estimator ``name`` with the tracking context and its options."""
+
+def estimator_class(name: str) -> type:
+    """The class of estimator ``name`` (unknown names raise InputError)."""
     if name not in ESTIMATORS:
         raise InputError(f"--estimator: unknown estimator {name!r} (choose from {', '.join(ESTIMATORS)})")
     module, cls = ESTIMATORS[name]
-    return getattr(importlib.import_module(module), cls)(ctx, **options)
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_estimator(name: str, ctx, **options):
+    """Instantiate estimator ``name`` with the tracking context and its options."""
+    cls = estimator_class(name)
+    if name in NEEDS_SHAFT and not ctx.robot.shaft_features:
+        raise InputError(f"robot.json has no shaft_features: the {NEEDS_SHAFT[name]} needs the shaft's "
+                         "cylinder (its silhouette edges are what it observes)")
+    return cls(ctx, **options)

@@ -231,15 +231,15 @@ def edge_bias_factors(k: int, dt: float | None, opts: FactorOptions) -> list:
 
 
 def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
-                  opts: FactorOptions, model: str | None = None, E_ref: np.ndarray | None = None) -> list:
+                  opts: FactorOptions, E_ref: np.ndarray | None = None) -> list:
     """The measurement factors of frame k (may be empty: no detections):
     :func:`frame_factor_groups`' shaft factors, then its marker factors."""
-    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, model, E_ref)
+    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, E_ref)
     return shaft + markers
 
 
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
-                        opts: FactorOptions, model: str | None = None,
+                        opts: FactorOptions,
                         E_ref: np.ndarray | None = None, pose_key: int | None = None,
                         line_bias: bool = True) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
@@ -266,7 +266,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     kern = opts.kernel
     x = key(k) if pose_key is None else pose_key
     b = bias_key(k // opts.edge_bias_period) if opts.edge_bias else None
-    model = observation.model or model
+    model = observation.model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
         direction = None            # orients the bias slopes, the same way in every frame

@@ -60,9 +60,12 @@ from __future__ import annotations
 import numpy as np
 
 from graphtrack.estimate import observation_models as om
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.estimate.options import PARTICLES
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
+from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
 from graphtrack.geometry.se3 import project_to_so3
@@ -81,17 +84,17 @@ class ParticleFilter:
     pixel_weight: pixel models; marker_gamma (1/px), marker_gate (px; times
     gate_scale, the full-size pixels per detection pixel, which the tracking
     pipeline sets to 1 / its detection scale, as for the smoother).
-    ``observation`` is the model the caller intends to feed (informational:
-    each Observation carries its own ``model``, which is what is scored).
+    Each Observation carries its own ``model``, which is what is scored.
     """
 
     name = "pf"
     stochastic = True   #: the estimate depends on ``seed`` (resampling): studies repeat it
     uses_observations = True
+    supported_observations = om.OBSERVATION_MODELS
     extra_columns = STD_COLUMNS + ("ess",)
 
-    def __init__(self, ctx: TrackingContext, observation: str = "line-intensities",
-                 particles: int = 1000, seed: int = 0, markers: bool = True, *,
+    def __init__(self, ctx: TrackingContext,
+                 particles: int = PARTICLES, seed: int = 0, markers: bool = True, *,
                  motion_std_b: float = 2.5e-5, motion_std_w: float = 1e-4,
                  init_std_b: float = 4e-3, init_std_w: float = 3e-2,
                  resample_threshold: float = 0.5, roughening: float = 0.5,
@@ -106,15 +109,12 @@ class ParticleFilter:
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = True, search_std_b: float = 6e-3, search_std_w: float = 0.05,
                  search_hypotheses: int = 2048, reinit_gap: int = 30):
-        if observation not in om.OBSERVATION_MODELS:
-            raise ValueError(f"unknown observation model {observation!r}")
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
         self.robot = ctx.robot
         self.K = np.asarray(ctx.camera.K, dtype=float)
         self.E0 = np.asarray(ctx.handeye, dtype=float).copy()
-        self.observation = observation
         self.N = int(particles)
         self.use_markers = bool(markers)
         self.rng = np.random.default_rng(seed)
@@ -138,11 +138,10 @@ class ParticleFilter:
         self.search_std = np.array([search_std_b] * 3 + [search_std_w] * 3, dtype=float)
         self.search = None
         if search:
-            from graphtrack.estimate.reinit import SearchInit
             self.search = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, gate_scale, markers,
                                      seed=seed, n=search_hypotheses, gamma_rho=gamma_rho,
                                      gamma_theta=gamma_theta, use_edge_ids=use_edge_ids,
-                                     pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
+                                     pixel_sigma=pixel_sigma, pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
                                      marker_gamma=marker_gamma, marker_gate=marker_gate,
                                      pixel_effective_count=pixel_effective_count, marker_loss=marker_loss,
                                      marker_sigma=marker_sigma, marker_huber_k=marker_huber_k)

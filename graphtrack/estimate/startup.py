@@ -17,8 +17,7 @@ N(mu_s, Sigma_s) (mu_0 = centre, Sigma_0 = diag(spread^2)), scores each with
     J(x) = sum_f log P_s(z_f | E(x)) - 1/2 |(x - centre) / spread|^2
 
 (the observation models of :mod:`graphtrack.estimate.observation_models`,
-through a :class:`graphtrack.estimate.particle_filter.ParticleFilter` used as
-a scorer, with the pixel sigma of stage s: ``sigmas`` px, coarse to fine, so
+the particle filter's vectorised projection and likelihood, :class:`Scorer`), with the pixel sigma of stage s: ``sigmas`` px, coarse to fine, so
 that a hypothesis 30 px off still sees the data's pull while a 2 px sigma
 would put all its pixels at the outlier floor), keeps the best ``elite``
 fraction and fits N(mu_{s+1}, Sigma_{s+1}) to it (inflated by ``inflate`` so
@@ -35,6 +34,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from graphtrack.estimate import observation_models as om
+from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
 
 #: pixel sigma (px) of each stage of the search, coarse to fine
 SIGMAS = (12.0, 6.0, 3.0, 2.0)
@@ -53,40 +55,60 @@ class SearchResult:
 
 
 class Scorer:
-    """log P(z | E(x)) of many hypotheses x (n, 6) for one frame, with the particle
-    filter's projection and observation models at a given pixel sigma.
+    """log P(z | E(x)) of many hypotheses x (n, 6) for one frame: the particle
+    filter's projection (:mod:`graphtrack.estimate.pf.projection`) and observation
+    models (:mod:`graphtrack.estimate.observation_models`), at a given pixel sigma.
 
-    ctx: the TrackingContext whose ``handeye`` is E_ref; options: the particle
-    filter's likelihood options (pixel_sigma is overridden per stage).
+    ctx: the TrackingContext whose ``handeye`` is E_ref; markers: score detected
+    markers; gate_scale: full-size pixels per detection pixel (multiplies
+    marker_gate, px); options: the particle filter's likelihood keywords
+    (``pixel_sigma`` is overridden per call when ``sigma`` is given).
     """
 
-    def __init__(self, ctx, **options):
-        from graphtrack.estimate.particle_filter import ParticleFilter
+    def __init__(self, ctx, markers: bool = True, gate_scale: float = 1.0, **options):
+        unknown = set(options) - set(_LIKELIHOOD_OPTIONS)
+        if unknown:
+            raise TypeError(f"unknown likelihood options {sorted(unknown)}")
+        self.robot = ctx.robot
+        self.K = np.asarray(ctx.camera.K, float)
+        self.E_ref = np.asarray(ctx.handeye, float)
+        self.markers = bool(markers)
+        o = {**_LIKELIHOOD_OPTIONS, **options}
+        self.shaft_options = {k: o[k] for k in _SHAFT_KEYS}
+        self.marker_gamma = float(o["marker_gamma"])
+        self.marker_gate = float(o["marker_gate"]) * float(gate_scale)
+        self.marker_options = dict(loss=o["marker_loss"], sigma=float(o["marker_sigma"]),
+                                   huber_k=float(o["marker_huber_k"]))
+        self._buffers: dict = {}
+        self._geometry = None
 
-        self.options = {k: v for k, v in options.items() if k in _PF_LIKELIHOOD_OPTIONS}
-        self._ctx = ctx
-        self._filters: dict[float, ParticleFilter] = {}
+    def _frame_geometry(self, q):
+        q = np.asarray(q, float)
+        if self._geometry is None or self._geometry[0] != q.tobytes():
+            self._geometry = (q.tobytes(), frame_geometry(self.robot, q, self.E_ref))
+        return self._geometry[1]
 
-    def _filter(self, sigma: float | None):
-        from graphtrack.estimate.particle_filter import ParticleFilter
-
-        if sigma not in self._filters:
-            opts = dict(self.options)
-            if sigma is not None:
-                opts["pixel_sigma"] = sigma
-            self._filters[sigma] = ParticleFilter(self._ctx, particles=1, search=False, **opts)
-        return self._filters[sigma]
-
-    def __call__(self, q, observations, x: np.ndarray, sigma: float | None = None) -> np.ndarray:
-        """Summed log-likelihood (n,) over ``observations`` [(q, observation), ...]
-        (or one frame: q and observation) of hypotheses x (n, 6)."""
-        pf = self._filter(sigma)
-        pairs = [(q, observations)] if q is not None else observations
-        ll = np.zeros(len(x))
-        for qq, obs in pairs:
-            ll += pf.log_likelihood(qq, obs, x)
+    def loglik(self, h: Hypotheses, observation, sigma: float | None = None,
+               estimate_index: int = 0) -> np.ndarray:
+        """(n,) log-likelihood of projected hypotheses h; ``estimate_index``: the
+        hypothesis whose marker pairing breaks ties (the particle filter's best)."""
+        ll = np.zeros(len(h.valid))
+        if observation is None:
+            return ll
+        if observation.has_shaft:
+            opts = self.shaft_options if sigma is None else {**self.shaft_options, "pixel_sigma": sigma}
+            ll += om.shaft_loglik(observation, h.rho.T, lambda: h.theta.T, h.valid, _buffers=self._buffers,
+                                  cos_sin=(h.cos.T, h.sin.T), **opts)
+        if self.markers and len(observation.markers):
+            ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers, self.marker_gamma,
+                                      self.marker_gate, estimate_index=estimate_index,
+                                      **self.marker_options)
         return ll
 
+    def __call__(self, q, observation, x: np.ndarray, sigma: float | None = None) -> np.ndarray:
+        """Log-likelihood (n,) of one frame (reading q, observation) for hypotheses x (n, 6)."""
+        h = project(self._frame_geometry(q), self.K, np.atleast_2d(np.asarray(x, float)))
+        return self.loglik(h, observation, sigma)
 
     def floor(self, q, observation, x: np.ndarray | None = None, shift: float = 0.05) -> float:
         """log P(z | E) of a hypothesis that explains nothing: x (default the reference)
@@ -96,10 +118,15 @@ class Scorer:
         return float(self(q, observation, x[None])[0])
 
 
-_PF_LIKELIHOOD_OPTIONS = ("markers", "gamma_rho", "gamma_theta", "use_edge_ids", "pixel_sigma",
-                          "pixel_outlier_sigmas", "pixel_weight", "marker_gamma", "marker_gate",
-                          "gate_scale", "pixel_effective_count", "marker_loss", "marker_sigma",
-                          "marker_huber_k")
+_SHAFT_KEYS = ("gamma_rho", "gamma_theta", "use_edge_ids", "pixel_sigma", "pixel_outlier_sigmas",
+               "pixel_weight", "pixel_effective_count")
+#: the particle filter's likelihood keywords and their defaults
+_LIKELIHOOD_OPTIONS = dict(gamma_rho=om.GAMMA_RHO, gamma_theta=om.GAMMA_THETA, use_edge_ids=False,
+                           pixel_sigma=om.PIXEL_SIGMA, pixel_outlier_sigmas=om.PIXEL_OUTLIER_SIGMAS,
+                           pixel_weight=om.PIXEL_WEIGHT, pixel_effective_count=om.PIXEL_EFFECTIVE_COUNT,
+                           marker_gamma=om.MARKER_GAMMA, marker_gate=om.MARKER_GATE,
+                           marker_loss=om.MARKER_LOSS, marker_sigma=om.MARKER_SIGMA,
+                           marker_huber_k=om.MARKER_HUBER_K)
 
 
 def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.Generator,

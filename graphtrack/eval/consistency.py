@@ -23,6 +23,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from tqdm import tqdm
+
+from factors.synthetic import make_scene, sequence
+from graphtrack.detect.base import POLAR_MODELS, Observation
+from graphtrack.estimate.graph import left_error
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.frame import Frame
 
 
 @dataclass
@@ -59,14 +66,6 @@ def monte_carlo_nees(make, runs: int = 200, first: int = 60, last: int = 200, se
     observed with ``observe_kw`` (pixel_noise, marker_noise, pixels_per_edge,
     ...); scored at one frame k_r ~ U[first, last).
     """
-    from tqdm import tqdm
-
-    from factors.synthetic import make_scene, sequence
-    from graphtrack.detect.base import POLAR_MODELS, Observation
-    from graphtrack.estimate.base import Frame
-    from graphtrack.estimate.context import TrackingContext
-    from graphtrack.estimate.graph import left_error
-
     scene = make_scene()
     pick = np.random.default_rng(seed)
     values = []

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from graphtrack.io.video import StampedVideoWriter
+from graphtrack.robot.features import base_features
 
 GREEN = (0, 200, 0)
 YELLOW = (0, 255, 255)
@@ -82,8 +83,6 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
                  tip_uv: np.ndarray | None = None, label_uv: np.ndarray | None = None,
                  text: str | None = None) -> np.ndarray:
     """Return a copy of the raw BGR image with the overlay of one frame drawn on it."""
-    from graphtrack.robot.features import base_features
-
     cam = ctx.camera
     img = np.ascontiguousarray(image.copy() if image is not None
                                else np.zeros((cam.height, cam.width, 3), np.uint8))

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, is_number, read_text
 
 
 @dataclass
@@ -164,7 +164,12 @@ class Calibration:
         return self.right.undistort(image, scale)
 
 
+#: largest image side accepted in ImageSize (px)
+MAX_IMAGE_SIDE = 20000
+
+
 def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
+    """doc[key] (or doc[key]["data"]): a flat list of n finite numbers (D: 4, 5 or 8)."""
     if key not in doc:
         raise InputError(f"{path}: missing key '{key}'")
     v = doc[key]
@@ -172,10 +177,11 @@ def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
         if "data" not in v:
             raise InputError(f"{path}: key '{key}' has no 'data' field")
         v = v["data"]
-    try:
-        a = np.asarray(v, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: key '{key}' is not a list of numbers") from None
+    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise InputError(f"{path}: key '{key}' must be a flat list of numbers, got {str(v)[:60]}")
+    if not all(is_number(x) for x in v):
+        raise InputError(f"{path}: key '{key}' holds NaN, infinite or out-of-range values")
+    a = np.asarray(v, dtype=float)
     if a.size != n and not (key.startswith("D") and a.size in (4, 5, 8)):
         raise InputError(f"{path}: key '{key}' has {a.size} values, expected {n}")
     if not np.all(np.isfinite(a)):
@@ -183,29 +189,49 @@ def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
     return a
 
 
+def _image_size(doc: dict, path: Path) -> tuple[int, int]:
+    size = doc.get("ImageSize")
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(is_number(x) and float(x).is_integer() and 0 < x <= MAX_IMAGE_SIDE for x in size)):
+        raise InputError(f"{path}: ImageSize must be [height, width], two integers in "
+                         f"1..{MAX_IMAGE_SIDE}, got {str(size)[:60]}")
+    return int(size[0]), int(size[1])
+
+
+def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
+    """K: positive focal lengths (<= 1e6 px), principal point within one image size of the
+    image, last row (0, 0, 1), K[1, 0] = 0."""
+    K = _matrix(doc, key, 9, path).reshape(3, 3)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if not (0 < fx <= 1e6 and 0 < fy <= 1e6):
+        raise InputError(f"{path}: key '{key}': focal lengths must be in (0, 1e6] px, got {fx:g}, {fy:g}")
+    if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
+        raise InputError(f"{path}: key '{key}': principal point ({cx:g}, {cy:g}) is far outside the "
+                         f"{w}x{h} image")
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1 or abs(K[0, 1]) > fx:
+        raise InputError(f"{path}: key '{key}' is not an intrinsic matrix (last row must be 0 0 1, "
+                         "K[1,0] = 0)")
+    return K
+
+
 def load_calibration(path: str | Path) -> Calibration:
     """Read camera_calibration.yaml (format doc); raise InputError naming file and key."""
     import yaml
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.safe_load(read_text(path))
     except yaml.YAMLError as e:
         raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping of keys")
-    size = _matrix(doc, "ImageSize", 2, path)
-    h, w = int(size[0]), int(size[1])
-    if h <= 0 or w <= 0:
-        raise InputError(f"{path}: ImageSize must be positive [height, width]")
+    h, w = _image_size(doc, path)
 
     def cam(kk: str, dk: str) -> Camera:
-        K = _matrix(doc, kk, 9, path).reshape(3, 3)
-        if K[0, 0] <= 0 or K[1, 1] <= 0:
-            raise InputError(f"{path}: key '{kk}' has non-positive focal length")
+        K = _intrinsics(doc, kk, h, w, path)
         D = _matrix(doc, dk, 5, path)
+        if np.any(np.abs(D) > 1e4):
+            raise InputError(f"{path}: key '{dk}' holds a coefficient beyond 1e4")
         D5 = np.zeros(5)
         D5[: min(5, D.size)] = D[:5]
         return Camera(K, D5, h, w)
@@ -217,6 +243,9 @@ def load_calibration(path: str | Path) -> Calibration:
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
             raise InputError(f"{path}: key 'R' is not a rotation matrix (right-from-left, row-major)")
         T = _matrix(doc, "T", 3, path) / 1000.0
+        if not np.linalg.norm(T) <= 1.0:
+            raise InputError(f"{path}: key 'T' is {1e3 * np.linalg.norm(T):g} mm long; a stereo baseline "
+                             "is at most 1000 mm")
         return Calibration(left, right, R, T)
     return Calibration(left)
 

@@ -42,6 +42,8 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.bag1scan import Bag1Scan
+from graphtrack.io.frame import Frame
 from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
 
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
@@ -94,6 +96,35 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     conv = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR,
             "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR}.get(enc)
     return cv2.cvtColor(img, conv) if conv is not None else img.copy()
+
+
+#: noise_span's window (px) and threshold (mean |difference| of neighbouring green values)
+NOISE_WINDOW_PX, NOISE_LEVEL = 512, 40.0
+
+
+def noise_span(image: np.ndarray) -> str | None:
+    """Where a raw image holds random bytes (damaged bag data), or None.
+
+    Raw messages carry no checksum, so overwritten bytes decode as an image. In
+    row-major pixel order, every window of ``NOISE_WINDOW_PX`` pixels gets the
+    mean |g[i+1] - g[i]| of its green values at every 4th i: uniform random
+    bytes give ~85, camera images (smooth at the pixel scale) well under 20; a
+    window above ``NOISE_LEVEL`` in an image whose median window is under half
+    of it is damage (an image noisy all over is taken as a picture). Any run of
+    >= 2 windows of bytes (3 KB of rgb8) covers one whole window.
+    """
+    g = np.ascontiguousarray(image[..., 1] if image.ndim == 3 else image).reshape(-1)
+    n = (g.size // NOISE_WINDOW_PX) * NOISE_WINDOW_PX
+    if n == 0:
+        return None
+    g = g[:n].reshape(-1, NOISE_WINDOW_PX)
+    d = np.abs(g[:, 0::4].astype(np.int16) - g[:, 1::4]).mean(axis=1)
+    bad = np.flatnonzero(d > NOISE_LEVEL)
+    if bad.size == 0 or np.median(d) > NOISE_LEVEL / 2:   # noisy all over: a picture of noise
+        return None
+    w = image.shape[1]
+    r0, r1 = bad[0] * NOISE_WINDOW_PX // w, ((bad[-1] + 1) * NOISE_WINDOW_PX - 1) // w
+    return f"image rows {r0}..{r1} hold random-looking bytes (damaged image data)"
 
 
 def _raw_header_ns(raw: bytes, ros2: bool) -> int:
@@ -197,7 +228,6 @@ class BagSource:
 
     def _scan_topics(self, err: Exception) -> dict[str, tuple[str, int]]:
         """Unindexed/truncated ROS 1 bag: one scan pass collects joints and image stamps."""
-        from graphtrack.io.bag1scan import Bag1Scan
         from rosbags.typesys import Stores, get_typestore
 
         store = get_typestore(Stores.ROS1_NOETIC)
@@ -293,7 +323,6 @@ class BagSource:
         images), in bag order."""
         topic = topic or self.image_topic
         if self.scan:
-            from graphtrack.io.bag1scan import Bag1Scan
             from rosbags.typesys import Stores, get_typestore
 
             store = get_typestore(Stores.ROS1_NOETIC)
@@ -311,8 +340,6 @@ class BagSource:
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
         """
-        from graphtrack.estimate.base import Frame
-
         joints, jaw = self.joint_tables()
         index = -1
         it = self._image_messages()
@@ -339,6 +366,9 @@ class BagSource:
                 raise
             except Exception as e:  # noqa: BLE001 - undecodable message or image
                 yield FrameError(index, "corrupt_image", f"{self.image_topic}: {_one_line(e)}")
+                continue
+            if self.image_type == IMAGE_TYPE and (why := noise_span(image)) is not None:
+                yield FrameError(index, "corrupt_image", f"{self.image_topic}: {why}")
                 continue
             if self.has_jaw:
                 j = jaw.nearest(stamp_ns)

@@ -23,7 +23,8 @@ from typing import Iterable
 import cv2
 import numpy as np
 
-from graphtrack.errors import FrameError, InputError
+from graphtrack.errors import FrameError, InputError, read_text
+from graphtrack.io.frame import Frame
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 
@@ -32,35 +33,46 @@ def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """joints.csv -> (stamps (N,) s, joints (N, n), jaw (N,) NaN when empty).
 
     Raises InputError naming the file (and line) on a wrong header, a wrong
-    field count, a non-number, or a ``frame`` that is not the row number.
+    field count, a non-number, a ``frame`` that is not the row number, or a
+    stamp that is empty, not finite or not after the previous row's.
     """
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    with path.open(newline="") as f:
-        reader = csv.reader(f)
-        header = [h.strip() for h in next(reader, [])]
-        n = len(header) - 3
-        if (n < 1 or header[:2] != ["frame", "stamp"] or header[-1] != "jaw"
-                or header[2:-1] != [f"q{i}" for i in range(1, n + 1)]):
-            raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw', "
-                             f"found {','.join(header)!r}")
-        stamps, joints, jaw = [], [], []
-        for line, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise InputError(f"{path}: line {line} has {len(row)} fields, expected {len(header)}")
-            try:
-                frame = int(row[0])
-                vals = [float(v) if v.strip() else math.nan for v in row[1:]]
-            except ValueError:
-                raise InputError(f"{path}: line {line} holds a value that is not a number") from None
-            if frame != len(stamps):
-                raise InputError(f"{path}: line {line}: frame {frame}, expected {len(stamps)} "
-                                 "(frames must be 0, 1, 2, ... in order)")
-            stamps.append(vals[0])
-            joints.append(vals[1:-1])
-            jaw.append(vals[-1])
+    try:
+        return _parse_joints_csv(read_text(path), path)
+    except csv.Error as e:
+        raise InputError(f"{path}: not a readable CSV file ({e})") from None
+
+
+def _parse_joints_csv(text: str, path: Path):
+    reader = csv.reader(text.splitlines())
+    header = [h.strip() for h in next(reader, [])]
+    n = len(header) - 3
+    if (n < 1 or header[:2] != ["frame", "stamp"] or header[-1] != "jaw"
+            or header[2:-1] != [f"q{i}" for i in range(1, n + 1)]):
+        raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw', "
+                         f"found {','.join(header)!r}")
+    stamps, joints, jaw, prev_line = [], [], [], 1
+    for line, row in enumerate(reader, start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != len(header):
+            raise InputError(f"{path}: line {line} has {len(row)} fields, expected {len(header)}")
+        try:
+            frame = int(row[0])
+            vals = [float(v) if v.strip() else math.nan for v in row[1:]]
+        except ValueError:
+            raise InputError(f"{path}: line {line} holds a value that is not a number") from None
+        if frame != len(stamps):
+            raise InputError(f"{path}: line {line}: frame {frame}, expected {len(stamps)} "
+                             "(frames must be 0, 1, 2, ... in order)")
+        if not math.isfinite(vals[0]):
+            raise InputError(f"{path}: line {line}: stamp {row[1].strip()!r} is not a finite number of seconds")
+        if stamps and not vals[0] > stamps[-1]:
+            raise InputError(f"{path}: line {line}: stamp {vals[0]!r} is not after line {prev_line}'s "
+                             f"{stamps[-1]!r} (stamps must increase)")
+        prev_line = line
+        stamps.append(vals[0])
+        joints.append(vals[1:-1])
+        jaw.append(vals[-1])
     return (np.array(stamps, dtype=float), np.array(joints, dtype=float).reshape(-1, n),
             np.array(jaw, dtype=float))
 
@@ -68,8 +80,8 @@ def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 class FolderSource:
     """frames/ (or video.mp4) + joints.csv; validated at construction, streamed later.
 
-    Attributes: path, n_images (= rows of joints.csv), has_jaw, truncated (False),
-    warnings.
+    Attributes: path, n_images (= rows of joints.csv), n_columns (joints per row),
+    has_jaw, truncated (False), warnings.
     """
 
     def __init__(self, root: str | Path):
@@ -78,6 +90,7 @@ class FolderSource:
         self.warnings: list[str] = []
         self._stamps, self._joints, self._jaw = read_joints_csv(self.path / "joints.csv")
         self.n_images = len(self._stamps)
+        self.n_columns = self._joints.shape[1]
         self.has_jaw = bool(np.any(np.isfinite(self._jaw)))
         frames_dir = self.path / "frames"
         self.video = None
@@ -90,7 +103,12 @@ class FolderSource:
             self._files = _image_files(frames_dir)
             if self.n_images and not self._files:
                 raise InputError(f"{frames_dir}: no images")
-            missing = self.n_images - sum(1 for k in self._files if k < self.n_images)
+            extra = sorted(k for k in self._files if k >= self.n_images)
+            if extra:
+                raise InputError(f"{frames_dir}: holds {len(self._files)} images but joints.csv has "
+                                 f"{self.n_images} rows (first image without a row: {self._files[extra[0]].name}); "
+                                 "every image needs its own row, images are never re-paired")
+            missing = self.n_images - len(self._files)
             if missing:
                 self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")
         elif (self.path / "video.mp4").is_file():
@@ -150,8 +168,6 @@ class FolderSource:
 
         Frame.image_right: frames_right/ holds the right image of the left image with the
         same name (same row, same stamp); None when it is missing or does not decode."""
-        from graphtrack.estimate.base import Frame
-
         for k, img, err in self._images(start):
             if err is not None:
                 yield FrameError(k, "corrupt_image", err)

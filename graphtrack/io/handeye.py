@@ -16,16 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, is_number, read_text
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
 
 
 def _read_yaml(path: Path) -> dict:
     import yaml
 
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    text = path.read_text()
+    text = read_text(path)
     # OpenCV FileStorage writes a "%YAML:1.0" directive that PyYAML rejects
     text = re.sub(r"^%YAML:1\.0\s*\n", "", text)
     try:
@@ -43,15 +41,22 @@ def _vector3(doc: dict, key: str, path: Path) -> np.ndarray:
     v = doc[key]
     if isinstance(v, dict):  # {data: [...]} as OpenCV / camera_calibration.yaml write it
         v = v.get("data")
-    try:
-        a = np.asarray(v, dtype=float).ravel()
-    except (TypeError, ValueError):
-        raise InputError(f"{path}: key '{key}' is not a list of 3 numbers") from None
+    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise InputError(f"{path}: key '{key}' is not a list of 3 numbers")
+    if not all(is_number(x) for x in v):
+        raise InputError(f"{path}: key '{key}' holds NaN, infinite or out-of-range values")
+    a = np.asarray(v, dtype=float)
     if a.size != 3:
         raise InputError(f"{path}: key '{key}' has {a.size} values, expected 3")
     if not np.all(np.isfinite(a)):
         raise InputError(f"{path}: key '{key}' holds NaN or infinite values")
     return a
+
+
+#: plausibility bounds: the camera is within MAX_TRANSLATION_MM of the arm's base, and a
+#: Rodrigues vector's angle is at most 2 pi
+MAX_TRANSLATION_MM = 5000.0
+MAX_ROTATION_RAD = 2 * np.pi
 
 
 def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
@@ -70,7 +75,8 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
     Raises
     ------
     InputError naming the file and the key when a key is missing, is not three
-    numbers, or holds NaN/inf, or when the file holds several arms and none was named.
+    numbers, holds NaN/inf, puts the camera more than 5 m from the base, turns more
+    than 2 pi, or when the file holds several arms and none was named.
     """
     from graphtrack.io.topics import TopicSelection, handeye_arm
 
@@ -83,6 +89,12 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
                          f"{', '.join(found) or 'no arm'}); choose the arm with --arm")
     t_mm = _vector3(doc, f"{prefix}_tvec", path)
     rvec = _vector3(doc, f"{prefix}_rvec", path)
+    if not np.linalg.norm(t_mm) <= MAX_TRANSLATION_MM:
+        raise InputError(f"{path}: key '{prefix}_tvec' is {np.linalg.norm(t_mm):.4g} mm from the base; "
+                         f"expected at most {MAX_TRANSLATION_MM:g} mm (the file is in millimetres)")
+    if not np.linalg.norm(rvec) <= MAX_ROTATION_RAD:
+        raise InputError(f"{path}: key '{prefix}_rvec' turns {np.linalg.norm(rvec):.4g} rad; an axis-angle "
+                         "vector's angle is at most 2 pi")
     return bw_to_matrix(np.concatenate([t_mm / 1000.0, rvec]))
 
 

@@ -10,44 +10,63 @@ from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, read_text
 
 HEADER = ["frame", "u", "v"]
 
 
-def read_labels(path: str | Path) -> dict[int, np.ndarray]:
+#: how far (px) a label may lie outside the image: labelling slack at the border
+BORDER_SLACK_PX = 10.0
+
+
+def read_labels(path: str | Path, image_size: tuple[int, int] | None = None) -> dict[int, np.ndarray]:
     """Read labels.csv -> {frame: array([u, v]) in px}.
 
-    Rows whose u or v is empty or NaN are treated as unlabelled and dropped.
-    Raises InputError naming the file (and line) on a wrong header, a
-    non-numeric value, a negative or repeated frame.
+    Rows whose u and v are both empty (or both ``nan``) are unlabelled and
+    dropped. Raises InputError naming the file (and line) on a wrong header, a
+    non-numeric, infinite or half-missing value, a negative or repeated frame, or, with
+    ``image_size`` (height, width), a pixel more than ``BORDER_SLACK_PX``
+    outside the image.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
+    try:
+        return _parse_labels(read_text(path), path, image_size)
+    except csv.Error as e:
+        raise InputError(f"{path}: not a readable CSV file ({e})") from None
+
+
+def _parse_labels(text: str, path: Path, image_size) -> dict[int, np.ndarray]:
     out: dict[int, np.ndarray] = {}
-    with path.open(newline="") as f:
-        reader = csv.reader(f)
-        header = next(reader, None)
-        if header is None or [h.strip() for h in header] != HEADER:
-            raise InputError(f"{path}: header must be 'frame,u,v', found {','.join(header or [])!r}")
-        for line, row in enumerate(reader, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != 3:
-                raise InputError(f"{path}: line {line} has {len(row)} fields, expected 3")
-            try:
-                frame = int(row[0])
-                uv = np.array([float(row[1]) if row[1].strip() else np.nan,
-                               float(row[2]) if row[2].strip() else np.nan])
-            except ValueError:
-                raise InputError(f"{path}: line {line} is not 'frame,u,v' numbers: {','.join(row)!r}") from None
-            if frame < 0:
-                raise InputError(f"{path}: line {line}: negative frame {frame}")
-            if frame in out:
-                raise InputError(f"{path}: line {line}: frame {frame} labelled twice")
-            if np.all(np.isfinite(uv)):
-                out[frame] = uv
+    reader = csv.reader(text.splitlines())
+    header = next(reader, None)
+    if header is None or [h.strip() for h in header] != HEADER:
+        raise InputError(f"{path}: header must be 'frame,u,v', found {','.join(header or [])!r}")
+    for line, row in enumerate(reader, start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != 3:
+            raise InputError(f"{path}: line {line} has {len(row)} fields, expected 3")
+        try:
+            frame = int(row[0])
+            uv = np.array([float(row[1]) if row[1].strip() else np.nan,
+                           float(row[2]) if row[2].strip() else np.nan])
+        except ValueError:
+            raise InputError(f"{path}: line {line} is not 'frame,u,v' numbers: {','.join(row)!r}") from None
+        if frame < 0:
+            raise InputError(f"{path}: line {line}: negative frame {frame}")
+        if frame in out:
+            raise InputError(f"{path}: line {line}: frame {frame} labelled twice")
+        if np.all(np.isnan(uv)) and all(c.strip().lower() in ("", "nan") for c in row[1:]):
+            continue   # both empty or both nan: the tip is not labelled in this frame
+        if not np.all(np.isfinite(uv)):
+            raise InputError(f"{path}: line {line}: u, v must be finite numbers, got {','.join(row[1:])!r}")
+        if image_size is not None:
+            h, w = image_size
+            s = BORDER_SLACK_PX
+            if not (-s <= uv[0] <= w + s and -s <= uv[1] <= h + s):
+                raise InputError(f"{path}: line {line}: pixel ({row[1].strip()}, {row[2].strip()}) is outside "
+                                 f"the {w}x{h} image")
+        out[frame] = uv
     return out
 
 

@@ -20,7 +20,10 @@ Per-frame problems are YIELDED (not raised) as
 - ``corrupt_image``: the image message / file / video frame does not decode;
 - ``image_size``: the image size differs from ``ImageSize`` in camera_calibration.yaml;
 - ``joint_count``: the joint reading does not hold the expected number of DH joints;
-- ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf.
+- ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf;
+- ``joint_range``: a joint (or jaw) reading beyond ``MAX_JOINT`` (100 rad or m);
+- ``flat_image``: the image's bottom quarter is one flat colour and the rest is not (a
+  damaged JPEG that decodes with a flat tail).
 
 Stereo recordings (right images plus K2, D2, R, T): each Frame's ``image_right``
 holds the right image matched by stamp (folder form: the same file name in
@@ -41,13 +44,14 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from graphtrack.errors import FrameError, InputError
+from graphtrack.errors import FrameError, InputError, read_text
 from graphtrack.geometry.camera import Calibration, load_calibration
 from graphtrack.io.bag import BagSource
 from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
 from graphtrack.io.labels import read_labels
 from graphtrack.io.topics import TopicSelection
+from graphtrack.robot.description import load_robot_json
 
 REQUIRED = ("robot.json", "camera_calibration.yaml", "handeye.yaml")
 
@@ -152,7 +156,7 @@ class Recording:
                 continue
             f = item
             joints = np.asarray(f.joints, dtype=float)
-            if f.image.shape[:2] != (h, w):
+            if f.image.ndim < 2 or f.image.shape[:2] != (h, w):
                 yield FrameError(f.index, "image_size", f"image is {f.image.shape[1]}x{f.image.shape[0]} px, "
                                  f"camera_calibration.yaml ImageSize says {w}x{h}")
             elif n_exp is not None and joints.size != n_exp:
@@ -160,6 +164,11 @@ class Recording:
                                  f"joint reading has {joints.size} values, robot.json has {n_exp} DH joints")
             elif not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(f.jaw)):
                 yield FrameError(f.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {f.jaw}")
+            elif np.any(np.abs(joints) > MAX_JOINT) or (has_jaw and abs(f.jaw) > MAX_JOINT):
+                yield FrameError(f.index, "joint_range", f"joint reading {joints.tolist()} beyond "
+                                 f"|q| <= {MAX_JOINT:g} (rad or m)")
+            elif (why := flat_image(f.image)) is not None:
+                yield FrameError(f.index, "flat_image", why)
             else:
                 if f.image_right is not None and f.image_right.shape[:2] != (h, w):
                     f.image_right = None
@@ -167,18 +176,37 @@ class Recording:
                 yield f
 
 
+#: a joint reading beyond this (rad or m) is no reading of a real arm
+MAX_JOINT = 100.0
+
+
+def flat_image(image: np.ndarray) -> str | None:
+    """Why an image is damaged, or None: its bottom quarter is one flat colour over whole
+    rows while the rest is not (a JPEG cut off or zeroed mid-stream decodes with a flat
+    grey tail; a JPEG zeroed whole does not decode at all). A sparse grid is tested first, so an
+    ordinary frame costs microseconds."""
+    h = image.shape[0] if image.ndim else 0
+    tail = image[h - max(h // 4, 1):] if h else image
+    sub = tail[::4, ::16]
+    if sub.size and sub.min() != sub.max():
+        return None
+    if tail.size and tail.min() != tail.max():
+        return None
+    if image.size == 0 or image.min() == image.max():
+        return None   # one flat colour all over: no damage signature (image-free estimators track it)
+    return f"the bottom {len(tail)} rows are one flat colour (damaged or cut-off image data)"
+
+
 def _dh_count(robot_json: Path) -> int | None:
     try:
-        doc = json.loads(robot_json.read_text())
-    except (OSError, ValueError) as e:
+        doc = json.loads(read_text(robot_json))
+    except ValueError as e:
         raise InputError(f"{robot_json}: not valid JSON ({str(e).splitlines()[0]})") from None
     dh = doc.get("DH_params") if isinstance(doc, dict) else None
     return len(dh) if isinstance(dh, list) and dh else None
 
 
 def _default_robot_loader(path: Path):
-    from graphtrack.robot.description import load_robot_json  # written in parallel: import lazily
-
     return load_robot_json(path)
 
 
@@ -237,9 +265,13 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         n_dh = getattr(robot, "n_dh", None)
         n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
-    labels = read_labels(path / "labels.csv") if (path / "labels.csv").is_file() else None
-    labels_r = read_labels(path / "labels_right.csv") if (path / "labels_right.csv").is_file() else None
+    size = (calibration.left.height, calibration.left.width)
+    labels = read_labels(path / "labels.csv", size) if (path / "labels.csv").is_file() else None
+    labels_r = read_labels(path / "labels_right.csv", size) if (path / "labels_right.csv").is_file() else None
     source, notes = find_source(path, topics)
     handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
+    if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:
+        raise InputError(f"{path / 'joints.csv'}: rows hold {source.n_columns} joints (q1..q{source.n_columns}) "
+                         f"but {path / 'robot.json'} has {n_joints} DH joints")
     return Recording(path, calibration, handeye, robot, labels, n_joints, source,
                      notes=notes, labels_right=labels_r)

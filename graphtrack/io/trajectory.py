@@ -20,6 +20,7 @@ reads both (an empty ``ms`` or tip reads as NaN).
 from __future__ import annotations
 
 import csv
+import io
 import math
 import os
 from dataclasses import dataclass, field
@@ -63,6 +64,12 @@ def _extra(v) -> str:
     return str(v)
 
 
+def _csv_line(fields: list[str]) -> str:
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="\n").writerow(fields)
+    return buf.getvalue()
+
+
 def _pose_fields(E: np.ndarray) -> list[str]:
     E = np.asarray(E, dtype=float)
     if E.shape != (4, 4):
@@ -101,12 +108,45 @@ class TrajectoryWriter:
 
     # -- files ----------------------------------------------------------------------
     def _open(self, mode: str, csv_path: Path | None = None, tum_path: Path | None = None) -> None:
-        self._csv = (csv_path or self.csv_path).open(mode, newline="")
-        self._tum = (tum_path or self.tum_path).open(mode, newline="")
-        self._csvw = csv.writer(self._csv, lineterminator="\n")
+        self._paths = (csv_path or self.csv_path, tum_path or self.tum_path)
+        try:
+            self._csv = self._paths[0].open(mode, newline="", encoding="utf-8")
+            self._tum = self._paths[1].open(mode, newline="", encoding="utf-8")
+            self._good = [p.stat().st_size for p in self._paths]
+        except OSError as e:
+            self._fail(e)
         if mode == "w":
-            self._csvw.writerow(COLUMNS + self.extra_columns)
+            self._emit(_csv_line(COLUMNS + self.extra_columns), "")
+
+    def _emit(self, csv_text: str, tum_text: str) -> None:
+        """Append one complete line to each file and flush; on a write error (full disk)
+        cut both files back to their last complete line and raise InputError."""
+        try:
+            self._csv.write(csv_text)
+            self._tum.write(tum_text)
             self._csv.flush()
+            self._tum.flush()
+        except OSError as e:
+            self._fail(e)
+        self._good[0] += len(csv_text.encode("utf-8"))
+        self._good[1] += len(tum_text.encode("utf-8"))
+
+    def _fail(self, e: OSError):
+        n = self.rows_written
+        for f in (self._csv, self._tum):
+            try:
+                if f is not None:
+                    f.close()   # its flush may fail again; the file is closed all the same
+            except OSError:
+                pass
+        self._csv = self._tum = None
+        for path, size in zip(self._paths, getattr(self, "_good", (0, 0))):
+            try:
+                os.truncate(path, size)
+            except OSError:
+                pass
+        raise InputError(f"{self._paths[0]}: cannot write ({e.strerror or e}); trajectory.csv and "
+                         f"trajectory.tum keep the {n} complete rows written before") from None
 
     def _format(self, frame_index, stamp, E, tip_uv, ms, extra) -> tuple[list[str], str]:
         pose = _pose_fields(E)
@@ -132,10 +172,7 @@ class TrajectoryWriter:
         if self._csv is None:
             raise ValueError("TrajectoryWriter is closed")
         row, tum = self._format(frame_index, stamp, E, tip_uv, ms, extra)
-        self._csvw.writerow(row)
-        self._tum.write(tum)
-        self._csv.flush()
-        self._tum.flush()
+        self._emit(_csv_line(row), tum)
         self.rows_written += 1
 
     def rewrite_all(self, rows: Iterable) -> None:
@@ -150,6 +187,20 @@ class TrajectoryWriter:
         self.close()
         tmp_csv = self.csv_path.with_name(self.csv_path.name + ".tmp")
         tmp_tum = self.tum_path.with_name(self.tum_path.name + ".tmp")
+        try:
+            self._write_rows(rows, tmp_csv, tmp_tum)
+        except InputError:
+            for t in (tmp_csv, tmp_tum):   # the streamed files stay as they were
+                t.unlink(missing_ok=True)
+            raise
+        try:
+            os.replace(tmp_csv, self.csv_path)
+            os.replace(tmp_tum, self.tum_path)
+        except OSError as e:
+            raise InputError(f"{self.csv_path}: cannot replace ({e.strerror or e})") from None
+        self._open("a")
+
+    def _write_rows(self, rows: Iterable, tmp_csv: Path, tmp_tum: Path) -> None:
         self._open("w", tmp_csv, tmp_tum)
         self.rows_written = 0
         for r in rows:
@@ -162,15 +213,15 @@ class TrajectoryWriter:
                 args = tuple(r)
             self.write(*args)
         self.close()
-        os.replace(tmp_csv, self.csv_path)
-        os.replace(tmp_tum, self.tum_path)
-        self._open("a")
 
     def close(self) -> None:
-        for f in (self._csv, self._tum):
+        files, self._csv, self._tum = (self._csv, self._tum), None, None
+        for f in files:
             if f is not None:
-                f.close()
-        self._csv = self._tum = None
+                try:
+                    f.close()
+                except OSError as e:   # rows are flushed one by one: this loses none
+                    raise InputError(f"{self.csv_path}: cannot write ({e.strerror or e})") from None
 
     def __enter__(self) -> "TrajectoryWriter":
         return self

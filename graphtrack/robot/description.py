@@ -19,13 +19,14 @@ are a second source, combined into one chain by :func:`load_dvrk_config`.
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, is_number, read_text
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,9 @@ class _Doc:
     def fail(self, field_: str, why: str):
         raise InputError(f"{self.path}: {self.where}{field_}: {why}")
 
-    def get(self, obj: dict, key: str, kind=float, default=None, required=True):
+    def get(self, obj: dict, key: str, kind=float, default=None, required=True, bound=None):
+        """obj[key] as ``kind`` (float, int, bool, str or "vec3"); numbers must be real
+        JSON numbers (not bools or strings), finite, and ``|x| <= bound`` when given."""
         if not isinstance(obj, dict):
             self.fail(key, "expected an object")
         if key not in obj:
@@ -141,34 +144,42 @@ class _Doc:
                 self.fail(key, "missing key")
             return default
         v = obj[key]
-        try:
-            if kind is float:
-                if isinstance(v, bool):
-                    raise TypeError
-                out = float(v)
-                if not np.isfinite(out):
-                    self.fail(key, "not a finite number")
-                return out
-            if kind is int:
-                if isinstance(v, bool) or int(v) != v:
-                    raise TypeError
-                return int(v)
-            if kind == "vec3":
-                a = np.asarray(v, dtype=float)
-                if a.shape != (3,) or not np.all(np.isfinite(a)):
-                    raise TypeError
-                return tuple(float(x) for x in a)
-            if kind is bool:
-                if not isinstance(v, bool):
-                    raise TypeError
-                return v
-            if kind is str:
-                if not isinstance(v, str):
-                    raise TypeError
-                return v
-        except (TypeError, ValueError):
+        if kind is float or kind is int:
+            if not is_number(v) or (kind is int and not (isinstance(v, int) or float(v).is_integer())):
+                self.fail(key, f"expected {kind.__name__}, got {v!r}")
+            self._bound(key, v, bound)
+            return kind(v)
+        if kind == "vec3":
+            if not isinstance(v, list) or len(v) != 3 or not all(is_number(x) for x in v):
+                self.fail(key, f"expected a list of 3 numbers, got {v!r}")
+            for x in v:
+                self._bound(key, x, bound)
+            return tuple(float(x) for x in v)
+        if not isinstance(v, kind):
             self.fail(key, f"expected {getattr(kind, '__name__', kind)}, got {v!r}")
         return v
+
+    def _bound(self, key: str, x, bound):
+        if bound is not None and not abs(x) <= bound:
+            self.fail(key, f"{x!r} is out of range (|value| <= {bound:g})")
+
+    def items(self, doc: dict, key: str) -> list:
+        """doc[key] as a list of objects ([] when absent or null)."""
+        v = doc.get(key)
+        if v is None:
+            return []
+        if not isinstance(v, list):
+            self.fail(key, f"expected a list of objects, got {type(v).__name__}")
+        for i, o in enumerate(v):
+            if not isinstance(o, dict):
+                self.fail(f"{key}[{i}]", f"expected an object, got {o!r}")
+        return v
+
+
+#: plausibility bounds of robot.json's numbers: lengths (m), angles (rad), link indices
+MAX_LENGTH_M = 10.0
+MAX_ANGLE_RAD = 4 * math.pi
+MAX_LINK = 1000
 
 
 def _dh_joint(d: _Doc, obj: dict, i: int, lower_keys: bool = False) -> DHJoint:
@@ -181,8 +192,9 @@ def _dh_joint(d: _Doc, obj: dict, i: int, lower_keys: bool = False) -> DHJoint:
         d.fail("convention", f"only modified DH is supported, got {conv!r}")
     keyA = "A" if "A" in obj or not lower_keys else "a"
     keyD = "D" if "D" in obj or not lower_keys else "d"
-    j = DHJoint(typ, d.get(obj, "alpha"), d.get(obj, keyA), d.get(obj, "theta"), d.get(obj, keyD),
-                d.get(obj, "offset", default=0.0, required=False))
+    L, ang = MAX_LENGTH_M, MAX_ANGLE_RAD
+    j = DHJoint(typ, d.get(obj, "alpha", bound=ang), d.get(obj, keyA, bound=L), d.get(obj, "theta", bound=ang),
+                d.get(obj, keyD, bound=L), d.get(obj, "offset", default=0.0, required=False, bound=max(L, ang)))
     d.where = ""
     return j
 
@@ -208,29 +220,32 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
     grip = d.get(doc, "has_gripper", bool, default=False, required=False)
     n_links = _links(len(dh), grip)
 
+    L = MAX_LENGTH_M
     points = []
-    for i, o in enumerate(doc.get("point_features", []) or []):
+    for i, o in enumerate(d.items(doc, "point_features")):
         d.where = f"point_features[{i}]: "
-        p = PointFeature(str(o.get("name", f"point_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"),
-                         d.get(o, "radius", default=0.0, required=False))
+        p = PointFeature(d.get(o, "name", str, default=f"point_{i}", required=False),
+                         d.get(o, "link", int, bound=MAX_LINK), d.get(o, "position", "vec3", bound=L),
+                         d.get(o, "radius", default=0.0, required=False, bound=L))
         _check_link(d, p.link, n_links, "link")
         if not 0 <= p.radius <= 0.01:
             d.fail("radius", "must be in [0, 0.01] (metres: a painted marker's disc; 0: a point)")
         points.append(p)
     shafts = []
-    for i, o in enumerate(doc.get("shaft_features", []) or []):
+    for i, o in enumerate(d.items(doc, "shaft_features")):
         d.where = f"shaft_features[{i}]: "
-        s = ShaftFeature(str(o.get("name", f"shaft_{i}")), d.get(o, "link", int), d.get(o, "position", "vec3"),
-                         d.get(o, "direction", "vec3"), d.get(o, "radius"))
+        s = ShaftFeature(d.get(o, "name", str, default=f"shaft_{i}", required=False),
+                         d.get(o, "link", int, bound=MAX_LINK), d.get(o, "position", "vec3", bound=L),
+                         d.get(o, "direction", "vec3", bound=L), d.get(o, "radius", bound=L))
         _check_link(d, s.link, n_links, "link")
-        if np.linalg.norm(s.direction) == 0 or s.radius <= 0:
-            d.fail("direction/radius", "direction must be non-zero and radius positive")
+        if not np.linalg.norm(s.direction) > 1e-9 or not 0 < s.radius <= 0.1:
+            d.fail("direction/radius", "direction must be non-zero and radius in (0, 0.1] m")
         shafts.append(s)
     skel = []
-    for i, o in enumerate(doc.get("skeleton_structure", []) or []):
+    for i, o in enumerate(d.items(doc, "skeleton_structure")):
         d.where = f"skeleton_structure[{i}]: "
-        s = SkeletonSegment(d.get(o, "link1", int), d.get(o, "position1", "vec3"),
-                            d.get(o, "link2", int), d.get(o, "position2", "vec3"))
+        s = SkeletonSegment(d.get(o, "link1", int, bound=MAX_LINK), d.get(o, "position1", "vec3", bound=L),
+                            d.get(o, "link2", int, bound=MAX_LINK), d.get(o, "position2", "vec3", bound=L))
         _check_link(d, s.link1, n_links, "link1")
         _check_link(d, s.link2, n_links, "link2")
         skel.append(s)
@@ -238,23 +253,29 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
     if doc.get("tool_tip") is not None:
         d.where = "tool_tip: "
         o = doc["tool_tip"]
-        tip = PointFeature("tool_tip", d.get(o, "link", int), d.get(o, "position", "vec3"))
+        tip = PointFeature("tool_tip", d.get(o, "link", int, bound=MAX_LINK), d.get(o, "position", "vec3", bound=L))
         _check_link(d, tip.link, n_links, "link")
     d.where = ""
-    limits = None
-    if doc.get("joint_limits") is not None:
-        limits = np.asarray(doc["joint_limits"], dtype=float)
-        n_j = len(dh) + (1 if grip else 0)
-        if limits.ndim != 2 or limits.shape[1] != 2 or len(limits) not in (len(dh), n_j):
-            d.fail("joint_limits", f"expected {n_j} pairs [qmin, qmax]")
+    limits = _joint_limits(d, doc.get("joint_limits"), len(dh), len(dh) + (1 if grip else 0))
     return RobotDescription(dh, grip, points, shafts, skel, tip, limits)
+
+
+def _joint_limits(d: _Doc, raw, n_dh: int, n_j: int) -> np.ndarray | None:
+    """robot.json ``joint_limits``: n_dh or n_j pairs [qmin, qmax] of finite numbers, qmin <= qmax."""
+    if raw is None:
+        return None
+    if (not isinstance(raw, list) or len(raw) not in (n_dh, n_j)
+            or not all(isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p) for p in raw)):
+        d.fail("joint_limits", f"expected {n_j} pairs [qmin, qmax] of numbers, got {json.dumps(raw)[:80]}")
+    limits = np.asarray(raw, dtype=float)
+    if np.any(limits[:, 0] > limits[:, 1]):
+        d.fail("joint_limits", "a pair has qmin > qmax")
+    return limits
 
 
 def _read_json(path: Path) -> dict:
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
-    text = path.read_text()
+    text = read_text(path)
     # dVRK files carry // and /* */ comments; strip them outside strings.
     text = re.sub(r'("(?:\\.|[^"\\])*")|//[^\n]*|/\*.*?\*/', lambda m: m.group(1) or "", text, flags=re.S)
     try:

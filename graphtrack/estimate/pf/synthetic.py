@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from graphtrack.detect.base import POLAR_MODELS, Observation
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.geometry.camera import Camera
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
 from graphtrack.geometry.se3 import bw_to_matrix, invert, make_transform, matrix_to_bw

@@ -1,0 +1,96 @@
+"""A tracking run's output folder: refusing to mix runs, strict JSON, and the run's verdict.
+
+- :func:`prepare_run_dir`: a folder holding another run's files (``RUN_FILES``) is
+  refused unless ``overwrite``, which deletes exactly those files first (other
+  files are the user's and are kept), so a new, shorter run never sits beside an
+  old run's overlay.mp4 or truth_errors.csv.
+- :func:`write_json`: metrics.json as strict JSON (RFC 8259): NaN and infinities
+  become ``null``; written to a temporary file and renamed, so a full disk leaves
+  the old file or none, never half of one.
+- :func:`require_tracked`: a run that tracked no frame is an error (exit status 2)
+  naming the skip reasons and the first skipped frame, never a silent exit 0.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+from graphtrack.errors import InputError
+
+#: the files a tracking run writes into its output folder
+RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", "truth_errors.csv",
+             "trajectory.csv.tmp", "trajectory.tum.tmp", "metrics.json.tmp")
+
+
+def prepare_run_dir(out: str | Path, overwrite: bool = False) -> Path:
+    """Check ``out`` holds no other run's files; with ``overwrite`` delete them.
+
+    Raises InputError ``"<out>: holds another run's files (...); use --overwrite ..."``.
+    """
+    out = Path(out)
+    found = [n for n in RUN_FILES if (out / n).exists()] if out.is_dir() else []
+    if found and not overwrite:
+        raise InputError(f"{out}: holds another run's files ({', '.join(found)}); use --overwrite to "
+                         "replace them, or choose another --out")
+    for n in found:
+        try:
+            (out / n).unlink()
+        except OSError as e:
+            raise InputError(f"{out / n}: cannot remove the previous run's file ({e.strerror or e})") from None
+    return out
+
+
+def strict(obj):
+    """``obj`` with every non-finite float replaced by None (recursively through dicts,
+    lists and tuples; numpy scalars become Python numbers)."""
+    if isinstance(obj, dict):
+        return {str(k): strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict(v) for v in obj]
+    if hasattr(obj, "item") and not isinstance(obj, (str, bytes)):  # numpy scalar
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def write_json(path: str | Path, doc) -> None:
+    """Write ``doc`` as strict, indented JSON (NaN/inf -> null), atomically; InputError
+    naming the file when it cannot be written (full disk, ...)."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with tmp.open("w") as f:
+            f.write(json.dumps(strict(doc), indent=2, allow_nan=False) + "\n")
+        os.replace(tmp, path)
+    except OSError as e:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise InputError(f"{path}: cannot write ({e.strerror or e})") from None
+
+
+def require_tracked(result: dict, out: str | Path) -> None:
+    """InputError when the run tracked no frame: the skip counts and the first skipped
+    frame's message (metrics.json ``skip_examples``) say why."""
+    if result.get("frames_tracked", 0) > 0:
+        return
+    reasons = result.get("skipped_reasons") or {}
+    n = int(sum(reasons.values()))
+    if not n:
+        raise InputError(f"no frame was tracked: the recording yielded no frame (see {Path(out) / 'metrics.json'})")
+    counts = ", ".join(f"{k}: {v}" for k, v in sorted(reasons.items()))
+    examples = result.get("skip_examples") or {}
+    first = min(examples.values(), key=lambda m: _frame_of(m)) if examples else ""
+    total = result.get("frames_total", n)
+    raise InputError(f"no frame was tracked: {n} of {total} frames skipped ({counts}); first: {first}")
+
+
+def _frame_of(message: str) -> int:
+    try:
+        return int(message.split(":", 1)[0].split()[-1])
+    except (ValueError, IndexError):
+        return 1 << 62
