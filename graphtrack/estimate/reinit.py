@@ -2,75 +2,139 @@
 :mod:`graphtrack.estimate.startup` at start-up, after a long stretch without
 detections, and when :mod:`graphtrack.estimate.divergence` flags a lost lock.
 
-:class:`SearchInit` is the smoother's policy object (the particle filter redraws
-its cloud itself). ``propose(q, observation, E_current, informative)`` is called
-once per frame and returns a new initial E (4x4) or None:
+:class:`SearchInit` is the policy object of the smoother and the particle filter.
+``propose(q, observation, E_current, informative)`` is called once per frame and
+returns a new initial E (4x4), or None to keep tracking; the adopted search result
+(x relative to E_ref = the hand-eye prior, and its elite covariance) is ``result``.
 
-- the first informative frame (shaft or markers): the search over
-  N(E_current, diag(spread^2)) (spread = (b m, w rad) per axis); its best
-  mode is returned (start-up);
-- an informative frame after ``gap`` or more frames without one, or when the
-  divergence monitor fires: the same search around the current estimate; its
-  mode is returned only when it explains the frame better than the current
-  estimate by more than ``margin`` nats (a generalised likelihood-ratio test:
-  a correct lock is kept, a wrong or lost one replaced).
+- Start-up, the first informative frame (shaft or markers): the search over
+  N(E_current, diag(spread^2)) (spread = (b m, w rad) per axis); its mode is
+  adopted at once (nothing is locked yet).
+- Re-initialisation: the same search around the current estimate, its prior
+  term the hand-eye prior N(0, diag(spread^2)); a mode x_c outside the hand-eye
+  prior (|x_c / spread|^2 > ``prior_gate``, chi^2_6's 99.9 % point: the lumped
+  error never leaves it) is rejected.
+- After a gap (an informative frame after ``gap`` or more frames without one)
+  the estimate is a prediction with nothing locked: x_c is adopted when it
+  explains this frame better than the prediction by more than ``margin`` nats.
+- When the divergence monitor fires, a lock exists that may be right (a partial
+  or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
+  only after a sequential likelihood-ratio test over the next ``confirm``
+  informative frames with the candidate held fixed:
+
+      Lambda = sum_t [log P(z_t | E(x_c)) - log P(z_t | E_t^current)] > confirm * margin
+
+  and the candidate's own mean misfit (:func:`graphtrack.estimate.divergence.misfit`)
+  under the monitor's threshold, and the candidate still ahead on the last of those
+  frames; the search then runs again on that frame around x_c (the candidate was
+  fit to a frame ``confirm`` frames old) and its mode is adopted. A single frame cannot decide: under a full
+  occlusion by another instrument nothing explains the frame and a hypothesis
+  on the occluder's edges wins that frame; as the tool moves with its readings
+  and the occluder does not, such a candidate loses the following frames. A
+  correct lock is kept; a wrong or lost one is replaced ``confirm`` frames later.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from graphtrack.estimate.divergence import DivergenceMonitor
-from graphtrack.estimate.startup import Scorer, global_search
+from graphtrack.estimate.divergence import DivergenceMonitor, misfit
+from graphtrack.estimate.startup import Scorer, SearchResult, global_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
+
+#: chi^2 with 6 degrees of freedom, 99.9 % point: the hand-eye prior's extent
+PRIOR_GATE = 22.46
+
+
+@dataclass
+class _Candidate:
+    result: SearchResult
+    llr: float = 0.0          # summed log-likelihood ratio candidate - current (nats)
+    misfits: float = 0.0      # summed misfit of the candidate
+    frames: int = 0
 
 
 class SearchInit:
-    """Start-up / re-initialisation policy (module doc). ``count``: searches adopted."""
+    """Start-up / re-initialisation policy (module doc). ``count``: searches adopted;
+    ``searches``: searches run."""
 
     def __init__(self, ctx, spread=(6e-3, 0.05), gap: int = 30, gate_scale: float = 1.0,
                  markers: bool = True, margin: float = 5.0, seed: int = 0, monitor: bool = True,
-                 n: int = 2048, **scorer_options):
+                 n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE, **scorer_options):
         b, w = spread
         self.spread = np.array([b] * 3 + [w] * 3, float)
         self.gap = int(gap)
         self.margin = float(margin)
+        self.confirm = int(confirm)
+        self.prior_gate = float(prior_gate)
         self.E_ref = np.asarray(ctx.handeye, float)
         self.scorer = Scorer(ctx, markers=markers, gate_scale=gate_scale, **scorer_options)
         self.n = int(n)
         self.rng = np.random.default_rng(seed)
         self.since = None            # informative frames: None before the first, else frames since
-        self.count = 0
+        self.count = self.searches = 0
         self.result = None           # the adopted SearchResult (x relative to E_ref)
+        self.candidate: _Candidate | None = None
         self.monitor = DivergenceMonitor() if monitor else None
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
+
+    def _adopt(self, res: SearchResult) -> np.ndarray:
+        if self.monitor is not None:
+            self.monitor.reset()
+        self.candidate = None
+        self.count += 1
+        self.result = res
+        return bw_to_matrix(res.x) @ self.E_ref
+
+    def _search(self, q, observation, x_cur, prior_centre=None) -> SearchResult:
+        self.searches += 1
+        return global_search(lambda x, s: self.scorer(q, observation, x, s), x_cur, self.spread, self.rng,
+                             n=self.n, prior_centre=prior_centre)
+
+    def _test(self, q, observation, ll_cur: float) -> np.ndarray | None:
+        """One frame of the candidate's sequential likelihood-ratio test (module doc)."""
+        c = self.candidate
+        xc = c.result.x
+        ll_c = float(self.scorer(q, observation, xc[None])[0])
+        m = misfit(ll_c, self.scorer.floor(q, observation, xc))
+        c.llr += ll_c - ll_cur
+        c.misfits += m if np.isfinite(m) else 1.0
+        c.frames += 1
+        if c.frames < self.confirm:
+            return None
+        threshold = self.monitor.threshold if self.monitor is not None else 0.5
+        if c.llr > self.confirm * self.margin and c.misfits / c.frames < threshold and ll_c - ll_cur > self.margin:
+            # confirmed: the mode is searched afresh on this frame, around the candidate
+            return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
+        self.candidate = None
+        return None
 
     def propose(self, q, observation, E_current: np.ndarray, informative: bool) -> np.ndarray | None:
         if not informative:
             if self.since is not None:
                 self.since += 1
             return None
-        first = self.since is None
         x_cur = self._x(E_current)
-        ll_cur = None
+        if self.since is None:                      # start-up
+            self.since = 0
+            return self._adopt(self._search(q, observation, x_cur))
+        ll_cur = float(self.scorer(q, observation, x_cur[None])[0])
         diverged = False
-        if self.monitor is not None and not first:
-            ll_cur = float(self.scorer(q, observation, x_cur[None])[0])
-            diverged = self.monitor.update(ll_cur, self.scorer.floor(q, observation, x_cur))
-        due = first or self.since >= self.gap or diverged
-        self.since = 0
-        if not due:
-            return None
-        res = global_search(lambda x, s: self.scorer(q, observation, x, s), x_cur, self.spread, self.rng,
-                            n=self.n)
-        if not first:
-            if ll_cur is None:
-                ll_cur = float(self.scorer(q, observation, x_cur[None])[0])
-            if res.loglik < ll_cur + self.margin:
-                return None
         if self.monitor is not None:
-            self.monitor.reset()
-        self.count += 1
-        self.result = res
-        return bw_to_matrix(res.x) @ self.E_ref
+            diverged = self.monitor.update(ll_cur, self.scorer.floor(q, observation, x_cur))
+        after_gap = self.since >= self.gap
+        self.since = 0
+        if self.candidate is not None and not after_gap:
+            return self._test(q, observation, ll_cur)
+        if not (after_gap or diverged):
+            return None
+        res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
+        if np.sum((res.x / self.spread) ** 2) > self.prior_gate:
+            return None
+        if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test
+            return self._adopt(res) if res.loglik > ll_cur + self.margin else None
+        self.candidate = _Candidate(res)
+        return self._test(q, observation, ll_cur)

@@ -130,15 +130,19 @@ _LIKELIHOOD_OPTIONS = dict(gamma_rho=om.GAMMA_RHO, gamma_theta=om.GAMMA_THETA, u
 
 
 def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.Generator,
-                  n: int = 2048, sigmas=SIGMAS, elite: float = 0.03, inflate: float = 1.5) -> SearchResult:
+                  n: int = 2048, sigmas=SIGMAS, elite: float = 0.03, inflate: float = 1.5,
+                  prior_centre: np.ndarray | None = None) -> SearchResult:
     """Annealed cross-entropy search (module doc).
 
     score(x, sigma) -> (n,) log-likelihood of hypotheses x (n, 6) at pixel sigma;
-    centre (6,), spread (6,): the prior N(centre, diag(spread^2)) of x.
+    centre (6,), spread (6,): the first stage draws from N(centre, diag(spread^2));
+    the prior term of J is N(prior_centre, diag(spread^2)) (default: centre; the
+    re-initialisations search around the current estimate under the hand-eye prior).
     """
-    centre = np.asarray(centre, float)
+    mu = np.asarray(centre, float).copy()
+    centre = mu.copy() if prior_centre is None else np.asarray(prior_centre, float)
     spread = np.asarray(spread, float)
-    mu, L = centre.copy(), np.diag(spread)
+    L = np.diag(spread)
     n_elite = max(8, int(round(elite * n)))
     best = None
     for s, sigma in enumerate(sigmas):
