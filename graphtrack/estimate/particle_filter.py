@@ -61,14 +61,16 @@ import numpy as np
 
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
-from graphtrack.estimate.options import PARTICLES
+from graphtrack.estimate.options import PARTICLES, SEARCH
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
+from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
 from graphtrack.geometry.se3 import project_to_so3
+from graphtrack.robot.features import base_features
 
 
 class ParticleFilter:
@@ -107,7 +109,7 @@ class ParticleFilter:
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
-                 search: bool = True, search_std_b: float = 6e-3, search_std_w: float = 0.05,
+                 search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
                  search_hypotheses: int = 2048, reinit_gap: int = 30):
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
@@ -130,7 +132,8 @@ class ParticleFilter:
         if marker_loss not in om.MARKER_LOSSES:
             raise ValueError(f"unknown marker loss {marker_loss!r}")
         self.marker_gamma = float(marker_gamma)
-        self.marker_gate = float(marker_gate) * float(gate_scale)
+        self.marker_gate = self.configured_gate = float(marker_gate) * float(gate_scale)
+        self.gate_scale = float(gate_scale)
         self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
@@ -156,6 +159,7 @@ class ParticleFilter:
         self.t = 0
         self.x_mean = centre.copy()
         self.R_mean = rotations(centre[None, 3:])[:, :, 0]
+        self.cov = np.diag(self.init_std ** 2)
 
     @property
     def weights(self) -> np.ndarray:
@@ -239,6 +243,11 @@ class ParticleFilter:
             self._redraw(self.search.result)  # start-up, long gap or divergence: global search
             h = self._project(q)
         if informative:
+            if self.use_markers and len(observation.markers):   # gate from the predicted cloud
+                self.marker_gate = marker_gate(base_features(self.robot, q).transformed(self.E).points,
+                                               self.K, self.cov + np.diag(self.motion_std ** 2),
+                                               self.configured_gate, self.marker_options["sigma"],
+                                               self.gate_scale)
             self.logw = normalize_log_weights(self.logw + self._loglik(h, observation))
         w = np.exp(self.logw)
         ess = effective_sample_size(w)
@@ -246,7 +255,7 @@ class ParticleFilter:
         self.x_mean = w @ self.x
         self.R_mean = project_to_so3((h.R.reshape(9, -1) @ w).reshape(3, 3))
         dx = self.x - self.x_mean
-        cov = (dx * w[:, None]).T @ dx
+        cov = self.cov = (dx * w[:, None]).T @ dx
         est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,
                        extra={**dict(zip(STD_COLUMNS, map(float, np.sqrt(np.diag(cov))))),
                               "ess": ess})
@@ -264,6 +273,7 @@ class ParticleFilter:
         L = np.linalg.cholesky(0.5 * (C + C.T))
         self.x = res.x + self.rng.standard_normal((self.N, 6)) @ L.T
         self.logw = np.full(self.N, -np.log(self.N))
+        self.cov = C
 
     def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
         """Systematic resampling, then roughening with (roughening^2) Sigma."""

@@ -79,16 +79,19 @@ to 20 mm), whose first seconds move the estimate by degrees.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
-from graphtrack.estimate.options import LAG_S, SMOOTHER
+from graphtrack.estimate.options import LAG_S, SEARCH, SMOOTHER
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
+from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.reinit import SearchInit
+from graphtrack.robot.features import base_features
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
                                        key, left_from_right_cov, split_options)
 from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
@@ -124,7 +127,7 @@ class FixedLagSmootherEstimator:
                  relinearize_threshold: float = 1e-2, settled_relinearize_threshold: float = 2e-2,
                  settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
-                 start_up_wait: int = 30, search: bool = True, search_std_b: float = 6e-3,
+                 start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
                  search_std_w: float = 0.05, reinit_gap: int = 30, jump_sigma_b: float = 5e-3,
                  jump_sigma_w: float = 0.035, **options):
         import gtsam
@@ -179,6 +182,8 @@ class FixedLagSmootherEstimator:
         self.last_stamp = None
         self.timings_ms: list[float] = []
         self.reinit = None
+        self.last_cov = None          # marginal covariance of the last x_t (the marker gate)
+        self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
         if search:
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
                                      markers)
@@ -201,6 +206,17 @@ class FixedLagSmootherEstimator:
         except RuntimeError:
             return None
         return left_from_right_cov(pose.matrix(), np.asarray(C))
+
+    def _gated_options(self, q, observation):
+        """The factor options with this frame's marker gate from the last marginal
+        covariance (:mod:`graphtrack.estimate.gating`); the configured gate without one."""
+        o = self.fopts
+        if self.last_cov is None or observation is None or not len(observation.markers):
+            return o
+        C = self.last_cov + self.motion_cov
+        points = base_features(self.ctx.robot, q).transformed(self.last.matrix()).points
+        g = marker_gate(points, self.K, C, o.marker_gate * o.gate_scale, o.marker_sigma, o.gate_scale)
+        return dataclasses.replace(o, marker_gate=g / o.gate_scale)
 
     def _start_up(self, k: int, shaft: list, markers: list, x: int):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
@@ -266,7 +282,7 @@ class FixedLagSmootherEstimator:
         # bias block's first frame, so that the block's variables leave together
         stamp = self.bias_stamp if self.bias else t
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self.fopts, self.E0, pose_key=x,
+                                             self._gated_options(frame.q, observation), self.E0, pose_key=x,
                                              line_bias=self.settled)
         jump = False
         if self.reinit is not None:   # start-up / after a long gap: initial value from the search
@@ -306,6 +322,7 @@ class FixedLagSmootherEstimator:
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
         cov = self._marginal(x, pose) if self.covariance else None
+        self.last_cov = cov
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)
         extra = estimate_extra(cov)
