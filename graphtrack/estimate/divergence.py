@@ -23,6 +23,10 @@ from collections import deque
 
 import numpy as np
 
+#: the alarm rate per informative frame the monitor is designed to stay under on a
+#: correct lock (window 10, threshold 0.5; tests/test_estimate_robust.py checks it)
+NOMINAL_FALSE_ALARM_RATE = 0.01
+
 #: log-likelihoods below this are the observation models' INVALID_LOGLIK (degenerate)
 _INVALID = -1e5
 
