@@ -51,7 +51,10 @@ class DivergenceMonitor:
         self.values.clear()
 
     def update(self, loglik: float, floor: float) -> bool:
-        m = misfit(loglik, floor)
+        return self.update_misfit(misfit(loglik, floor))
+
+    def update_misfit(self, m: float) -> bool:
+        """Add one frame's misfit (NaN: not counted); True when the window's mean exceeds the threshold."""
         if np.isfinite(m):
             self.values.append(m)
         if len(self.values) < self.window or np.mean(self.values) <= self.threshold:

@@ -266,13 +266,17 @@ class ParticleFilter:
     def _redraw(self, res) -> None:
         """Redraw the cloud from a search result (:mod:`graphtrack.estimate.reinit`):
         x_n ~ N(res.x, C), C the search's elite covariance with per-axis stds clipped
-        to [init_std / 8, init_std]."""
+        to [init_std / 8, init_std], weighted by prior / proposal density."""
         sd = np.sqrt(np.clip(np.diag(res.cov), 0.0, None))
         scale = np.clip(sd, self.init_std / 8, self.init_std) / np.maximum(sd, 1e-300)
         C = scale[:, None] * res.cov * scale[None, :] + np.diag((1e-3 * self.init_std) ** 2)
         L = np.linalg.cholesky(0.5 * (C + C.T))
-        self.x = res.x + self.rng.standard_normal((self.N, 6)) @ L.T
-        self.logw = np.full(self.N, -np.log(self.N))
+        z = self.rng.standard_normal((self.N, 6))
+        self.x = res.x + z @ L.T
+        # importance weights prior / proposal: the search proposes, the prior (the
+        # search's hand-eye prior N(0, diag(spread^2))) keeps its say
+        self.logw = normalize_log_weights(-0.5 * np.sum((self.x / self.search.spread) ** 2, axis=1)
+                                          + 0.5 * np.sum(z * z, axis=1))
         self.cov = C
 
     def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:

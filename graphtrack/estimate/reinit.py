@@ -25,7 +25,9 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
       Lambda = sum_t [log P(z_t | E(x_c)) - log P(z_t | E_t^current)] > confirm * margin
 
   and the candidate's own mean misfit (:func:`graphtrack.estimate.divergence.misfit`)
-  under the monitor's threshold, and the candidate still ahead on the last of those
+  under the monitor's threshold while the current estimate's stays above it (a
+  lock that recovers by itself, e.g. as an occluder slides out, is kept), and the
+  candidate still ahead on the last of those
   frames; the search then runs again on that frame around x_c (the candidate was
   fit to a frame ``confirm`` frames old) and its mode is adopted. A single frame cannot decide: under a full
   occlusion by another instrument nothing explains the frame and a hypothesis
@@ -52,6 +54,7 @@ class _Candidate:
     result: SearchResult
     llr: float = 0.0          # summed log-likelihood ratio candidate - current (nats)
     misfits: float = 0.0      # summed misfit of the candidate
+    current: float = 0.0      # summed misfit of the current estimate
     frames: int = 0
 
 
@@ -94,7 +97,7 @@ class SearchInit:
         return global_search(lambda x, s: self.scorer(q, observation, x, s), x_cur, self.spread, self.rng,
                              n=self.n, prior_centre=prior_centre)
 
-    def _test(self, q, observation, ll_cur: float) -> np.ndarray | None:
+    def _test(self, q, observation, ll_cur: float, m_cur: float) -> np.ndarray | None:
         """One frame of the candidate's sequential likelihood-ratio test (module doc)."""
         c = self.candidate
         xc = c.result.x
@@ -102,11 +105,14 @@ class SearchInit:
         m = misfit(ll_c, self.scorer.floor(q, observation, xc))
         c.llr += ll_c - ll_cur
         c.misfits += m if np.isfinite(m) else 1.0
+        c.current += m_cur if np.isfinite(m_cur) else 0.0
         c.frames += 1
         if c.frames < self.confirm:
             return None
         threshold = self.monitor.threshold if self.monitor is not None else 0.5
-        if c.llr > self.confirm * self.margin and c.misfits / c.frames < threshold and ll_c - ll_cur > self.margin:
+        still_lost = c.current / c.frames > threshold
+        if still_lost and c.llr > self.confirm * self.margin and c.misfits / c.frames < threshold \
+                and ll_c - ll_cur > self.margin:
             # confirmed: the mode is searched afresh on this frame, around the candidate
             return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
         self.candidate = None
@@ -122,13 +128,14 @@ class SearchInit:
             self.since = 0
             return self._adopt(self._search(q, observation, x_cur))
         ll_cur = float(self.scorer(q, observation, x_cur[None])[0])
-        diverged = False
+        diverged, m_cur = False, float("nan")
         if self.monitor is not None:
-            diverged = self.monitor.update(ll_cur, self.scorer.floor(q, observation, x_cur))
+            m_cur = misfit(ll_cur, self.scorer.floor(q, observation, x_cur))
+            diverged = self.monitor.update_misfit(m_cur)
         after_gap = self.since >= self.gap
         self.since = 0
         if self.candidate is not None and not after_gap:
-            return self._test(q, observation, ll_cur)
+            return self._test(q, observation, ll_cur, m_cur)
         if not (after_gap or diverged):
             return None
         res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
@@ -137,4 +144,4 @@ class SearchInit:
         if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test
             return self._adopt(res) if res.loglik > ll_cur + self.margin else None
         self.candidate = _Candidate(res)
-        return self._test(q, observation, ll_cur)
+        return self._test(q, observation, ll_cur, m_cur)

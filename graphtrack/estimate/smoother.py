@@ -218,11 +218,13 @@ class FixedLagSmootherEstimator:
         g = marker_gate(points, self.K, C, o.marker_gate * o.gate_scale, o.marker_sigma, o.gate_scale)
         return dataclasses.replace(o, marker_gate=g / o.gate_scale)
 
-    def _start_up(self, k: int, shaft: list, markers: list, x: int):
+    def _start_up(self, k: int, shaft: list, markers: list, x: int, init=None):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
         that frame's factors + a prior at the current estimate (the hand-eye prior's
         spread). iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
-        error of several mm / deg overshoot into a wrong data association."""
+        error of several mm / deg overshoot into a wrong data association.
+        ``init``: the initial value (the start-up search's mode) when it is not
+        the prior's centre: the search picks the basin, the prior keeps its say."""
         gtsam = self.gtsam
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.start_up_iterations)
@@ -231,7 +233,7 @@ class FixedLagSmootherEstimator:
         # step overshoots ~2x and lambda * I (up to 1e5) cannot shorten it enough
         params.setDiagonalDamping(True)
         params.setlambdaUpperBound(1e12)
-        pose = self.last
+        pose = self.last if init is None else init
         for stage in ([shaft, shaft + markers] if shaft and markers else [shaft + markers]):
             g = gtsam.NonlinearFactorGraph()
             g.add(gtsam.PriorFactorPose3(x, self.last, self.prior_noise))
@@ -284,12 +286,14 @@ class FixedLagSmootherEstimator:
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
                                              self._gated_options(frame.q, observation), self.E0, pose_key=x,
                                              line_bias=self.settled)
-        jump = False
-        if self.reinit is not None:   # start-up / after a long gap: initial value from the search
+        jump, found = False, None
+        if self.reinit is not None:   # start-up / re-initialisation: initial value from the search
             found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers))
             if found is not None:
+                found = gtsam.Pose3(found)
                 jump = self.started   # re-initialisation: a loose motion factor lets x_t move there
-                self.last = gtsam.Pose3(found)
+                if jump:
+                    self.last = found
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
@@ -303,7 +307,7 @@ class FixedLagSmootherEstimator:
                 markers = []          # no marker association before the shaft has been seen
                 self.waited += 1
             if shaft or markers:
-                self.last = self._start_up(k, shaft, markers, x)
+                self.last = self._start_up(k, shaft, markers, x, init=found)
                 self.started = True
                 self.start_stamp = t
         for f in shaft + markers:
