@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from factors.synthetic import make_scene, sequence  # noqa: E402
+from graphtrack.sim.synthetic import make_scene, sequence  # noqa: E402
 from graphtrack.detect.base import Observation  # noqa: E402
 from graphtrack.estimate.base import Frame  # noqa: E402
 from graphtrack.estimate.batch import BatchEstimator  # noqa: E402

@@ -19,8 +19,8 @@ convention
   definitions), applied per pixel / per marker inside the multi-residual factors;
 - :mod:`factors.edge_bias`: the detector's edge-bias state (lateral / width
   offset and slope, px) and its Gauss-Markov prior and transition;
-- :mod:`factors.limb`: the shared limb-line geometry and its derivatives;
-- :mod:`factors.synthetic`: observations synthesised from the geometry (tests,
-  benchmarks).
+- :mod:`factors.limb`: the shared limb-line geometry and its derivatives.
+
+Synthetic observations for their tests: :mod:`graphtrack.sim.synthetic`.
 """
 from factors.robust import RobustKernel, make_kernel  # noqa: F401

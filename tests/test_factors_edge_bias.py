@@ -11,7 +11,7 @@ from factors.edge_bias import (SLOPE_SCALE, BiasTransitionError, bias_coefficien
 from factors.limb import limb_lines, line_matrix
 from factors.limb import LimbPairing, ShaftAxis
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
-from factors.synthetic import make_scene, sequence
+from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.base import Frame

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from factors.synthetic import make_scene, sequence
+from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.base import Frame

@@ -52,7 +52,7 @@ def monte_carlo_nees(make, runs: int = 200, first: int = 60, last: int = 200, se
                      progress: bool = False, **observe_kw) -> NeesResult:
     """Monte-Carlo NEES of the estimators built by ``make(ctx)`` (a fresh one per run).
 
-    Run r: a synthetic sequence (:func:`factors.synthetic.sequence`) with seed
+    Run r: a synthetic sequence (:func:`graphtrack.sim.synthetic.sequence`) with seed
     ``seed + 1 + r``, the sequence's default hand-eye error (4.1 mm / 1.6 deg)
     or, with ``prior_std`` = (m, rad), one drawn from N(0, diag(prior_std^2)),
     the true E following the random walk ``walk_sigma`` (m, rad per frame),
@@ -61,7 +61,7 @@ def monte_carlo_nees(make, runs: int = 200, first: int = 60, last: int = 200, se
     """
     from tqdm import tqdm
 
-    from factors.synthetic import make_scene, sequence
+    from graphtrack.sim.synthetic import make_scene, sequence
     from graphtrack.detect.base import POLAR_MODELS, Observation
     from graphtrack.estimate.base import Frame
     from graphtrack.estimate.context import TrackingContext
