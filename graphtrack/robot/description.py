@@ -1,6 +1,6 @@
 """The arm and tool: robot.json (the sequence format) and the dVRK's own config files.
 
-robot.json (../shared/docs/sequence-format.md) holds modified (Craig) DH
+robot.json (docs/sequence-format.md) holds modified (Craig) DH
 parameters, one entry per joint, and the features the camera sees. Joint i's
 transform from frame i-1 to frame i is
 
