@@ -15,6 +15,7 @@ def rec(tmp_path_factory):
                     size=(270, 480), progress=False, form="folder")
 
 
+@pytest.mark.slow
 def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("GRAPHTRACK_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "demo"
@@ -60,6 +61,7 @@ def test_detect_bad_recording_exit_2(tmp_path, capsys):
     assert "graphtrack: error:" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_refine_is_track_with_batch(rec, tmp_path):
     from graphtrack.cli import build_parser
 

@@ -136,6 +136,7 @@ def test_cli_bad_weights_exit_2(tmp_path, capsys):
         make_detector("learned", weights=str(tmp_path / "missing.pt"))
 
 
+@pytest.mark.slow
 def test_sold2_adapter_random_weights(tmp_path):
     from kornia.feature import SOLD2_detector   # kornia is a dependency (pyproject)
 

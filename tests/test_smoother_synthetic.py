@@ -63,6 +63,7 @@ def test_polar_model():
     assert within(errs[-1], 0.3, 0.15), errs[-1]
 
 
+@pytest.mark.slow
 def test_batch_fixed_lag_smoother_selectable():
     _, out, errs = run("smoother", 60, pixel_noise=0.0, marker_noise=0.0,
                        options={"smoother": "batch", "covariance": False})
@@ -101,6 +102,7 @@ def test_robust_kernel_with_20_percent_outliers():
     assert within(errs[-1], 0.5, 0.25), errs[-1]
 
 
+@pytest.mark.slow
 def test_nees_consistent_over_independent_runs():
     """Monte-Carlo NEES (graphtrack.eval.consistency): 60 independent runs, one value
     each at frame 40; truth follows the motion model, pixel and marker noise match
@@ -189,6 +191,7 @@ def test_settled_frames_relinearise_coarser():
     assert within(left_error(frames[-1].E_true, e.E), 1.0, 0.5)
 
 
+@pytest.mark.slow
 def test_polar_lines_join_the_edge_bias_state_once_settled():
     """Polar models with the default edge-bias state: the smoother's lines are on E_t
     alone until its settle time (2 s after the start-up frame), then on (E_t, b_j);
