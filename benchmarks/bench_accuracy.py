@@ -49,7 +49,7 @@ WORKERS = int(os.environ.get("GRAPHTRACK_BENCH_WORKERS", "1"))
 
 def run(results: dict) -> dict:
     from graphtrack.detect.base import OBSERVATION_MODELS
-    from graphtrack.eval.study import StudyOptions, run_study
+    from graphtrack.study import StudyOptions, run_study
     from graphtrack.sim import simulate
 
     paths = []

@@ -10,6 +10,11 @@ per-frame milliseconds, steady state); ``wall_fps_*`` also counts the start-up
 run once to warm up (20 frames) and then REPEATS times over FRAMES frames; the
 median frames/s is reported with the median per-stage milliseconds.
 
+Busy core: ``graphtrack track`` (learned + smoother, 540x960) as its own
+process, free to use every core, alone and with a busy-looping process
+beside it, with the default ``--threads 1`` and with one thread per core (the
+libraries' own default); 1000 / its mean steady per-frame milliseconds.
+
 Memory: a 1800-frame 1080x1920 recording (JPEG-compressed bag, made by
 repeating 150 simulated frames with increasing stamps) is tracked in a child
 process; its peak resident set size is read from getrusage(RUSAGE_CHILDREN).
@@ -102,11 +107,62 @@ def long_recording(size=(1080, 1920), frames=1800) -> Path:
 
 
 def time_track(seq: Path, detector: str, estimator: str, frames: int) -> dict:
+    from graphtrack.detect.options import DetectionOptions
     from graphtrack.track import TrackOptions, track
 
-    opts = TrackOptions(estimator=estimator, detector=detector, observation="line-intensities")
+    opts = TrackOptions(estimator=estimator, detection=DetectionOptions(detector=detector))
     out = DATA / "out"
     return track(seq, out, opts, progress=False, quiet=True, max_frames=frames)
+
+
+def _busy_loop() -> None:  # pragma: no cover - runs in a child process
+    while True:
+        pass
+
+
+def cli_fps(seq: Path, threads: int, busy: bool, frames: int = FRAMES) -> float:
+    """Steady frames/s of `graphtrack track` (learned + smoother) in a child process that may use
+    every core, with ``busy``: a busy-looping process beside it."""
+    import json
+    import multiprocessing as mp
+
+    every = set(range(os.cpu_count() or 1))
+
+    def unpinned():
+        os.sched_setaffinity(0, every)
+
+    hog = None
+    if busy:
+        hog = mp.get_context("spawn").Process(target=_busy_loop, daemon=True)
+        hog.start()
+        os.sched_setaffinity(hog.pid, every)
+    try:
+        import shutil
+
+        out = DATA / f"out-cli-{threads}-{int(busy)}"
+        shutil.rmtree(out, ignore_errors=True)
+        cmd = [sys.executable, "-m", "graphtrack.cli", "track", str(seq), "--estimator", "smoother",
+               "--detector", "learned", "--out", str(out), "--quiet", "--threads", str(threads),
+               "--max-frames", str(frames)]
+        subprocess.run(cmd, check=True, preexec_fn=unpinned)
+        return float(json.loads((out / "metrics.json").read_text())["fps_steady"])
+    finally:
+        if hog is not None:
+            hog.terminate()
+            hog.join()
+
+
+def busy_core(res: dict) -> None:
+    seq = recording((540, 960))
+    cores = os.cpu_count() or 1
+    cases = [("idle_threads1", 1, False), ("busy_threads1", 1, True), (f"busy_threads{cores}", cores, True)]
+    rows = ["| graphtrack track, learned + smoother, 540x960 | frames/s |", "|---|---|"]
+    for key, threads, busy in cases:
+        fps = statistics.median(cli_fps(seq, threads, busy) for _ in range(REPEATS))
+        res[f"fps_540_learned_smoother_{key}"] = fps
+        rows.append(f"| {'a busy core beside it' if busy else 'idle machine'}, --threads {threads} | {fps:.1f} |")
+        print(f"{key:24s} {fps:6.1f} frames/s", flush=True)
+    res.setdefault("tables", {})["busy core (own process, all cores allowed)"] = "\n".join(rows)
 
 
 def run(results: dict) -> dict:
@@ -133,6 +189,7 @@ def run(results: dict) -> dict:
         rows.append(f"| {key} | {fps:.1f} | " + " | ".join(f"{stages[s]:.2f}" for s in STAGES) + " |")
         print(f"{key:24s} {fps:6.1f} frames/s  " + " ".join(f"{s}={stages[s]:.2f}" for s in STAGES), flush=True)
     res.setdefault("tables", {})["end to end, per-stage median ms per frame"] = "\n".join(rows)
+    busy_core(res)
 
     long = long_recording()
     t = time.perf_counter()

@@ -19,7 +19,9 @@ convention
   definitions), applied per pixel / per marker inside the multi-residual factors;
 - :mod:`factors.edge_bias`: the detector's edge-bias state (lateral / width
   offset and slope, px) and its Gauss-Markov prior and transition;
-- :mod:`factors.limb`: the shared limb-line geometry and its derivatives.
+- :mod:`factors.limb`: the pairing of a frame's shaft observations with the two
+  limbs (the limb lines and their derivatives are
+  :func:`graphtrack.geometry.cylinder.limb_line_coefficients`).
 
 Synthetic observations for their tests: :mod:`graphtrack.sim.synthetic`.
 """

@@ -28,8 +28,9 @@ direction projected through a fixed reference pose, the hand-eye prior E_0,
 so the same for both sets of a frame and from frame to frame),
 and T = ``SLOPE_SCALE`` = 100 px: an offset is the edge's offset at the set's
 centroid and a slope its change over 100 px of edge. R is the signed distance
-to limb i's line (A, B, C)(E) as :func:`factors.limb.limb_lines` orients it:
-both limbs' normals point into the shaft's image, so they point opposite ways,
+to limb i's line (A, B, C)(E) as
+:func:`graphtrack.geometry.cylinder.limb_line_coefficients` orients it: both
+limbs' normals point into the shaft's image, so they point opposite ways,
 the same lateral shift is +l on limb 0 and -l on limb 1 (sgn = +1, -1), and
 w > 0 means both edges moved inwards (a narrower image), w < 0 outwards.
 Lateral and width terms get their own spreads: the lateral ones are observed

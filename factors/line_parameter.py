@@ -1,7 +1,8 @@
 """Line-parameter factor: one detected shaft line (rho_d, theta_d) against E.
 
-For the polar observation models. With the projected limb line
-L(E) = (A, B, C) (:mod:`factors.limb`) written WITHOUT canonicalisation as
+For the polar observation models. With the projected limb line L(E) = (A, B, C)
+(:func:`graphtrack.geometry.cylinder.limb_line_coefficients`) written WITHOUT
+canonicalisation as (:func:`graphtrack.geometry.cylinder.line_polar`)
 
     theta(E) = atan2(B, A),   rho(E) = -C / s,   s = |(A, B)|
 
@@ -17,6 +18,7 @@ other detected line (a shared :class:`factors.limb.LimbPairing`) the two take
 different limbs, the pairing with the smaller total whitened cost. Analytic Jacobian:
 
     d theta/dL = (-B, A, 0)/s^2,   d rho/dL = (C A/s^3, C B/s^3, -1/s)
+    (:func:`graphtrack.geometry.cylinder.line_polar_jacobian`)
 
 (the representation flip only changes the constant part of r). Whitening by
 (sigma_rho px, sigma_theta rad) and the robust kernel are a
@@ -55,9 +57,10 @@ from __future__ import annotations
 import numpy as np
 
 from factors.edge_bias import BIAS_DIM, SLOPE_SCALE, limb_bias, limb_bias_jacobian
-from factors.limb import LimbPairing, ShaftAxis, line_matrix
 from factors.error_function import PoseBiasErrorFunction
+from factors.limb import LimbPairing
 from factors.robust import RobustKernel, make_kernel
+from graphtrack.geometry.cylinder import ShaftAxis, line_matrix, line_polar, line_polar_jacobian
 from graphtrack.geometry.lines import line_difference
 
 
@@ -99,9 +102,8 @@ class LineParameterError(PoseBiasErrorFunction):
     def _differences(self, L: np.ndarray, biased: bool = True):
         if biased:
             L = self.biased(L)
-        A, B, C = L[:, 0], L[:, 1], L[:, 2]
-        s = np.hypot(A, B)
-        return line_difference(-C / s, np.arctan2(B, A), self.rho_d, self.theta_d)
+        rho, theta = line_polar(L)
+        return line_difference(rho, theta, self.rho_d, self.theta_d)
 
     def costs(self, L: np.ndarray) -> np.ndarray:
         """Whitened squared difference (2,) of the detected line to each limb of L (2, 3),
@@ -129,11 +131,7 @@ class LineParameterError(PoseBiasErrorFunction):
         r = np.array([drho[i], dth[i]])
         if not jacobian:
             return r, None
-        Lb = self.biased(L)[i]
-        a, bb, c = Lb
-        si = np.hypot(a, bb)
-        dr_dLb = np.array([[c * a / si ** 3, c * bb / si ** 3, -1.0 / si],
-                           [-bb / si ** 2, a / si ** 2, 0.0]])              # d(rho, theta)/dL'
+        dr_dLb = line_polar_jacobian(self.biased(L)[i])                  # d(rho, theta)/dL'
         if b is None:
             return r, dr_dLb @ dL[i]
         A, B, C = L[i]

@@ -44,6 +44,7 @@ from scipy.optimize import linear_sum_assignment
 
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
+from graphtrack.geometry.se3 import skew
 
 
 def associate(predicted: np.ndarray, detected: np.ndarray, gate: float = 20.0,
@@ -59,11 +60,6 @@ def associate(predicted: np.ndarray, detected: np.ndarray, gate: float = 20.0,
     ok = D[rows, cols] <= gate
     a[rows[ok]] = cols[ok]
     return a
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """[v]x, so that P @ [v]x is the row-wise cross product P x v."""
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 class MarkerError(PoseErrorFunction):
@@ -136,7 +132,7 @@ class MarkerError(PoseErrorFunction):
         if not jacobian:
             return c, usable, None
         # P x v = P @ [v]x for the rows of R (cheaper than np.cross on every call)
-        PxR = [P @ _skew(R[r]) for r in range(3)]
+        PxR = [P @ skew(R[r]) for r in range(3)]
         sx, sy = fx * iz, fy * iz
         a0 = sx[:, None] * (R[0] - x[:, None] * R[2])            # d u_x / d(R p) . R
         a1 = sy[:, None] * (R[1] - y[:, None] * R[2])
@@ -148,7 +144,7 @@ class MarkerError(PoseErrorFunction):
             return c, usable, du.reshape(M, S, 2, 6).mean(1)
         dc = (w[:, None, None] * du).reshape(M, S, 2, 6).sum(1)
         if live.any():
-            dg = np.concatenate([-(n @ _skew(R.T @ t)), -n], 1)          # (R^T t) x n, -n
+            dg = np.concatenate([-(n @ skew(R.T @ t)), -n], 1)          # (R^T t) x n, -n
             dZ = np.concatenate([PxR[2], np.broadcast_to(R[2], P.shape)], 1)
             dw = np.where(live[:, None], dg * (iz ** 3)[:, None] - (3.0 * g * iz ** 4)[:, None] * dZ, 0.0)
             r = u - np.repeat(c, S, axis=0)

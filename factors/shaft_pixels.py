@@ -13,9 +13,12 @@ data of the frame's readings) the residual vector is
 (vectorised), so GTSAM makes one Python callback per edge and frame.
 
 Analytic Jacobian (right perturbation xi = (omega, v)): with h_j = (x_j, y_j, 1),
-s = |(A, B)| and dL/dxi from :func:`factors.limb.limb_lines`,
+s = |(A, B)| and dL/dxi from :func:`graphtrack.geometry.cylinder.limb_line_coefficients`,
 
     dz_j/dxi = (h_j - z_j sigma (A, B, 0)/s) / (s sigma) . dL/dxi
+
+(:func:`graphtrack.geometry.cylinder.pixel_residuals` and
+:func:`graphtrack.geometry.cylinder.pixel_residual_jacobian`, divided by sigma).
 
 Edge assignment: at every evaluation (so at each relinearisation) each edge's
 pixel set is re-assigned to a projected limb by robust cost: alone, to the
@@ -56,8 +59,9 @@ import numpy as np
 
 from factors.edge_bias import BIAS_DIM, bias_coefficients, limb_bias, limb_bias_jacobian
 from factors.error_function import PoseBiasErrorFunction
-from factors.limb import LimbPairing, ShaftAxis, line_matrix
+from factors.limb import LimbPairing
 from factors.robust import RobustKernel, make_kernel
+from graphtrack.geometry.cylinder import ShaftAxis, line_matrix, pixel_residual_jacobian, pixel_residuals
 
 
 class ShaftPixelsError(PoseBiasErrorFunction):
@@ -87,8 +91,7 @@ class ShaftPixelsError(PoseBiasErrorFunction):
         """z (m, 2): the whitened residuals of the pixels against both limbs L (2, 3)
         (kept for the last L: the pairing's costs and the evaluation share them)."""
         if L is not self._zL:
-            s = np.hypot(L[:, 0], L[:, 1])
-            self._zL, self._z = L, (self.h @ L.T) / (s * self.sigma)
+            self._zL, self._z = L, pixel_residuals(self.h, L) / self.sigma
         return self._z
 
     def costs(self, L: np.ndarray) -> np.ndarray:
@@ -105,7 +108,6 @@ class ShaftPixelsError(PoseBiasErrorFunction):
         if not valid:
             self.limb = -1
             return np.zeros(m), (np.zeros((m, ncols)) if jacobian else None)
-        s = np.hypot(L[:, 0], L[:, 1])                              # (2,)
         z = self.whitened(L)                                        # (m, 2)
         i = self.pairing.limbs(E, L)[self.slot]
         self.limb = i
@@ -114,12 +116,9 @@ class ShaftPixelsError(PoseBiasErrorFunction):
             zi = zi - (self.C @ limb_bias(b, i)) / self.sigma
         if not jacobian:
             return self.sqrt_w * self.kernel.apply_scalar(zi, None)[0], None
-        ab0 = np.array([L[i, 0], L[i, 1], 0.0]) / s[i]
-        # dz/dxi = (h - z sigma (A, B, 0)/s)/(s sigma) . dL/dxi, evaluated as h.(dL/s sigma) - z (ab0.dL/s)
-        # (z the unbiased distance: the bias term does not depend on E)
-        dLi = dL[i] / (s[i] * self.sigma)                            # (3, 6)
         J = np.zeros((m, ncols))
-        J[:, :6] = self.h @ dLi - z[:, i][:, None] * (self.sigma * (ab0 @ dLi))[None, :]
+        # with the unbiased distance sigma z[:, i]: the bias term does not depend on E
+        J[:, :6] = pixel_residual_jacobian(self.h, L[i], dL[i], self.sigma * z[:, i]) / self.sigma
         if b is not None:
             J[:, 6:] = (self.C @ limb_bias_jacobian(i)) / -self.sigma
         e, J = self.kernel.apply_scalar(zi, J)

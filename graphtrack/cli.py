@@ -3,7 +3,8 @@
 Each command module defines ``add_parser(subparsers)`` (registering its
 arguments and ``set_defaults(func=run)``) and ``run(args) -> int``. Bad input
 (:class:`~graphtrack.errors.InputError`) is printed as one line and exits 2;
-no traceback reaches the user for it.
+no traceback reaches the user for it. Before any numerical library loads, the
+process's thread pools are set to ``--threads`` (default 1; :mod:`graphtrack.threads`).
 """
 from __future__ import annotations
 
@@ -11,10 +12,12 @@ import argparse
 import importlib
 import sys
 
+from graphtrack.commands.common import threads_from_args
 from graphtrack.errors import InputError
+from graphtrack.threads import DEFAULT_THREADS, limit_threads, set_thread_environment
 
 #: Subcommands in the order ``--help`` lists them.
-COMMANDS = ("demo", "simulate", "track", "refine", "detect", "compare", "train")
+COMMANDS = ("demo", "simulate", "track", "refine", "detect", "compare", "robot", "train")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,13 +42,31 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+
+def _threads_in(argv: list[str]) -> int:
+    """The --threads value in argv (default 1), read before numpy and torch load."""
+    for i, a in enumerate(argv):
+        v = a.split("=", 1)[1] if a.startswith("--threads=") else (
+            argv[i + 1] if a == "--threads" and i + 1 < len(argv) else None)
+        if v is not None:
+            try:
+                return max(1, int(v))
+            except ValueError:
+                return DEFAULT_THREADS  # argparse reports it
+    return DEFAULT_THREADS
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    set_thread_environment(_threads_in(argv))
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
     try:
+        if hasattr(args, "threads"):
+            limit_threads(threads_from_args(args))
         return int(args.func(args) or 0)
     except InputError as e:
         print(f"graphtrack: error: {e}", file=sys.stderr)

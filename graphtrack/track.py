@@ -8,6 +8,7 @@ metrics.json; bad recordings raise InputError before anything is written.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import time
@@ -16,38 +17,52 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from graphtrack.detect import make_detector, observe
+from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.errors import FrameError, InputError
-from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate import estimator_class
+from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
+from graphtrack.eval.overlay import OverlayWriter
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.io.outdir import writable_dir
+from graphtrack.io.recording import Recording, open_recording
+from graphtrack.io.topics import TopicSelection
+from graphtrack.io.trajectory import TrajectoryWriter
 from graphtrack.robot.features import base_features, shaft_lines
 
 STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
+ESTIMATOR = "smoother"   #: the default estimator: the fixed-lag smoother
 
 
-@dataclass
+@dataclass(frozen=True)
 class TrackOptions:
-    """Everything that selects one tracking run (also the key of a study cell)."""
+    """Everything that selects one tracking run (also the key of a study cell).
 
-    estimator: str = "kinematics"
-    observation: str = "line-intensities"
-    detector: str = "learned"
-    markers: bool = True
-    estimator_options: dict = field(default_factory=dict)
-    detector_options: dict = field(default_factory=dict)
-    alpha: float = 10.0
-    beta: float = 0.9
+    estimator: a name of :data:`graphtrack.estimate.ESTIMATORS`; observation:
+    the observation model (:data:`graphtrack.detect.base.OBSERVATION_MODELS`);
+    seed: of the observation's RANSAC draws (the estimator's own is in
+    ``estimation``; the CLI and the studies set both from one seed); tip_feature:
+    a point feature to evaluate instead of robot.json's tool_tip.
+    """
+
+    estimator: str = ESTIMATOR
+    observation: str = OBSERVATION
+    detection: DetectionOptions = field(default_factory=DetectionOptions)
+    estimation: EstimatorOptions = field(default_factory=EstimatorOptions)
     seed: int = 0
-    detect_scale: float | None = None  # None: auto, detect at most 960 px wide
-    tip_feature: str | None = None     # a point feature to evaluate instead of robot.json's tool_tip
+    tip_feature: str | None = None
 
 
 #: the widest association gate (px at full size), see Pipeline.gate
 MAX_GATE_PX = 150.0
 
 
-def auto_detect_scale(width: int, max_width: int = 960) -> float:
+def auto_detect_scale(width: int, max_width: int = MAX_DETECT_WIDTH) -> float:
     """Detection runs on the undistorted image scaled to at most ``max_width`` px wide
     (1080x1920 recordings are detected at half size; smaller ones at full size)."""
     return 1.0 if width <= max_width else max_width / float(width)
@@ -64,24 +79,19 @@ class Pipeline:
     def __init__(self, ctx: TrackingContext, options: TrackOptions):
         self.ctx = ctx
         self.options = options
-        self.scale = options.detect_scale or auto_detect_scale(ctx.camera.width)
+        det = options.detection
+        self.scale = det.scale or auto_detect_scale(ctx.camera.width)
         self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
-        opts = dict(options.estimator_options)
-        if options.estimator != "kinematics":
-            opts.setdefault("observation", options.observation)
-            opts.setdefault("markers", options.markers)
-            # marker gates are tuned in detection pixels (an image <= 960 px wide); the
-            # estimators see full-size pixels
-            opts.setdefault("gate_scale", 1.0 / self.scale)
-        self.estimator = make_estimator(options.estimator, ctx, **opts)
-        self.needs_images = getattr(self.estimator, "uses_observations", True)
+        cls = estimator_class(options.estimator)
+        self.needs_images = cls.uses_observations
+        kw = options.estimation.keywords(options.estimator)
         self.detector = None
         if self.needs_images:
-            from graphtrack.detect import make_detector
-            from graphtrack.detect import observe
-
-            self.detector = make_detector(options.detector, **options.detector_options)
-            self.observe = observe
+            # marker gates are tuned in detection pixels (an image <= 960 px wide); the
+            # estimators see full-size pixels
+            kw.update(markers=det.markers, gate_scale=1.0 / self.scale)
+            self.detector = make_detector(det.detector, **det.detector_keywords())
+        self.estimator = cls(ctx, **kw)
         self.last_E = ctx.handeye.copy()
         self.last_std = None          # nothing known before the first estimate: widest gate
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
@@ -115,10 +125,10 @@ class Pipeline:
         MAX_GATE_PX. A fixed 40 px gate at a start-up 42 px off kept a
         tuning recording's true edges out for 8 frames.
         """
-        from dataclasses import replace
-
-        base = getattr(self.detector, "association", None)
-        if base is None or not self.ctx.robot.shaft_features:
+        if self.detector is None or not self.ctx.robot.shaft_features:
+            return None
+        base = self.detector.association
+        if base is None:
             return None
         std = self.last_std
         if std is None:
@@ -132,13 +142,13 @@ class Pipeline:
             widest = min(3.0 * s, MAX_GATE_PX * self.scale)
         if widest <= base.max_offset:
             return None
-        return replace(base, max_offset=float(widest))
+        return dataclasses.replace(base, max_offset=float(widest))
 
     def step(self, frame: Frame):
         ms = {}
         detection = observation = None
         if self.needs_images:
-            observe = self.observe
+            det = self.options.detection
             t = time.perf_counter()
             und = self.ctx.camera.undistort(frame.image, self.scale)
             ms["undistort"] = 1e3 * (time.perf_counter() - t)
@@ -146,9 +156,8 @@ class Pipeline:
             detection = self.detector.detect(und, self.predicted_lines(frame), self.gate(frame))
             ms["detect"] = 1e3 * (time.perf_counter() - t)
             t = time.perf_counter()
-            observation = observe.make_observation(detection, self.options.observation,
-                                                   alpha=self.options.alpha, beta=self.options.beta,
-                                                   use_markers=self.options.markers, rng=self.rng)
+            observation = observe.make_observation(detection, self.options.observation, alpha=det.alpha,
+                                                   beta=det.beta, use_markers=det.markers, rng=self.rng)
             observation = observe.scale_observation(observation, 1.0 / self.scale)  # full-size pixels
             detection = observe.scale_detection(detection, 1.0 / self.scale)
             ms["observe"] = 1e3 * (time.perf_counter() - t)
@@ -171,11 +180,9 @@ def tip_pixel(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
     return ctx.camera.project_raw(tip)
 
 
-def _evaluated_tip(rec, tip_feature: str | None):
+def _evaluated_tip(rec: Recording, tip_feature: str | None):
     """The robot with the point that is evaluated as the tool tip (format doc: robot.json's
     ``tool_tip``; when it is missing, evaluation must be told which point feature to use)."""
-    import dataclasses
-
     robot = rec.robot
     if tip_feature:
         names = {p.name: p for p in robot.point_features}
@@ -189,118 +196,159 @@ def _evaluated_tip(rec, tip_feature: str | None):
     return robot
 
 
-def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
-          progress: bool = True, max_frames: int | None = None, quiet: bool = False) -> dict:
-    """Run one estimator over a recording; write the outputs into ``out``; return metrics.
-
-    The returned dict is metrics.json's content plus ``timing`` (median ms
-    per stage) and ``fps``.
-    """
-    from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
-    from graphtrack.io.outdir import writable_dir
-    from graphtrack.io.recording import open_recording
-    from graphtrack.io.trajectory import TrajectoryWriter
-
-    rec = open_recording(path)
+def _open(path: str | Path, options: TrackOptions, quiet: bool,
+          topics: TopicSelection) -> tuple[Recording, TrackingContext]:
+    """The recording (checked; its warnings printed unless quiet) and its tracking context."""
+    rec = open_recording(path, topics=topics)
     if rec.robot.has_gripper and not rec.has_jaw:
         raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
                          "(/dvrk/PSM1/state_jaw_current or the joints.csv 'jaw' column); the tool tip "
                          "would be wrong without them")
     for w in rec.warnings:
-        if not quiet:
-            print(f"graphtrack: warning: {w}", file=sys.stderr)
+        _warn(f"warning: {w}", quiet)
     rec.robot = _evaluated_tip(rec, options.tip_feature)
-    ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
+    return rec, TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
+
+
+def _warn(message: str, quiet: bool) -> None:
+    if not quiet:
+        print(f"graphtrack: {message}", file=sys.stderr)
+
+
+def _bad_joints(frame: Frame, n_joints: int) -> str | None:
+    """Why a decoded frame's joint vector cannot be tracked (its skip reason), or None."""
+    if len(frame.q) != n_joints:
+        return "joint_count"
+    return None if np.all(np.isfinite(frame.q)) else "nan_joints"
+
+
+@dataclass
+class _Run:
+    """What one tracking run has collected so far: per tracked frame its index, tip
+    pixel and (index, stamp, q, total ms) row; per-stage and per-frame milliseconds;
+    the skip reasons; frames read (tracked or skipped)."""
+
+    frames: list = field(default_factory=list)
+    tips: list = field(default_factory=list)
+    rows: list = field(default_factory=list)
+    stage_ms: dict = field(default_factory=lambda: {s: [] for s in STAGES})
+    frame_ms: list = field(default_factory=list)
+    skipped: Counter = field(default_factory=Counter)
+    read: int = 0
+
+    def add(self, frame: Frame, tip: np.ndarray, ms: dict, total_ms: float, frame_ms: float) -> None:
+        for s in STAGES:
+            self.stage_ms[s].append(ms.get(s, 0.0))
+        self.frame_ms.append(frame_ms)
+        self.frames.append(frame.index)
+        self.tips.append(tip)
+        self.rows.append((frame.index, frame.stamp, frame.q, total_ms))
+
+    def summary(self, wall: float) -> dict:
+        """Frame counts, median ms per stage, fps over the wall time and the steady state:
+        every per-frame cost (decode ... write) of frames 1.. (frame 0 also pays the
+        start-up: the bag's joint pass, first use of the detector), no finish()."""
+        out = {"timing_ms_median": {s: float(np.median(v)) if v else 0.0 for s, v in self.stage_ms.items()},
+               "fps": float(len(self.frames) / wall) if wall > 0 else float("nan")}
+        steady = self.frame_ms[1:] if len(self.frame_ms) > 1 else self.frame_ms
+        out["frame_ms_mean"] = float(np.mean(steady)) if steady else float("nan")
+        out["fps_steady"] = float(1e3 / np.mean(steady)) if steady else float("nan")
+        out["wall_s"] = float(wall)
+        return out
+
+
+def _frames(rec: Recording, max_frames: int | None, run: _Run, bar):
+    """(item, decode ms, start time) for up to ``max_frames`` recording items, counted in run.read."""
+    it = iter(rec.frames())
+    while max_frames is None or run.read < max_frames:
+        t0 = time.perf_counter()
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        run.read += 1
+        if bar is not None:
+            bar.update(1)
+        yield item, 1e3 * (time.perf_counter() - t0), t0
+
+
+def _refine(pipe: Pipeline, run: _Run, writer: TrajectoryWriter, extra: list[str]) -> None:
+    """An offline estimator's refined estimates replace every streamed row and tip."""
+    refined = pipe.estimator.finish()
+    if refined is None:
+        return
+    run.tips, rows = [], []
+    for (fi, stamp, q, ms), est in zip(run.rows, refined):
+        tip = tip_pixel(pipe.ctx, q, est.E)
+        run.tips.append(tip)
+        rows.append((fi, stamp, est.E, tip, ms, _extras(est, extra)))
+    writer.rewrite_all(rows)
+
+
+def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
+          progress: bool = True, max_frames: int | None = None, quiet: bool = False,
+          topics: TopicSelection = TopicSelection()) -> dict:
+    """Run one estimator over a recording; write the outputs into ``out``; return metrics.
+
+    ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`).
+
+    The returned dict is metrics.json's content plus ``timing`` (median ms
+    per stage) and ``fps``.
+    """
+    rec, ctx = _open(path, options, quiet, topics)
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
-    extra = list(getattr(pipe.estimator, "extra_columns", ()))  # the estimator's own columns
-    overlay = None
-    if video:
-        from graphtrack.eval.overlay import OverlayWriter
-
-        overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels)
-    skipped: Counter = Counter()
-    frames, tips, stage_ms, rows, frame_ms = [], [], {s: [] for s in STAGES}, [], []
+    extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
+    overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels) if video else None
+    run = _Run()
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
-                   disable=quiet)
+    bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
+               disable=quiet) if progress else None
     t_wall = time.perf_counter()
     with TrajectoryWriter(out, extra_columns=extra) as writer:
-        it = iter(rec.frames())
-        n = 0
-        while max_frames is None or n < max_frames:
-            t0 = time.perf_counter()
-            try:
-                item = next(it)
-            except StopIteration:
-                break
-            t_decode = 1e3 * (time.perf_counter() - t0)
-            n += 1
-            if bar is not None:
-                bar.update(1)
+        for item, t_decode, t0 in _frames(rec, max_frames, run, bar):
             if isinstance(item, FrameError):
-                skipped[item.reason] += 1
-                if not quiet:
-                    print(f"graphtrack: warning: skipping {item}", file=sys.stderr)
+                run.skipped[item.reason] += 1
+                _warn(f"warning: skipping {item}", quiet)
                 continue
             frame = item
-            if len(frame.q) != rec.robot.n_joints or not np.all(np.isfinite(frame.q)):
-                skipped["joint_count" if len(frame.q) != rec.robot.n_joints else "nan_joints"] += 1
-                if not quiet:
-                    print(f"graphtrack: warning: skipping frame {frame.index}: joint vector has "
-                          f"{len(frame.q)} finite={bool(np.all(np.isfinite(frame.q)))} values, "
-                          f"expected {rec.robot.n_joints}", file=sys.stderr)
+            reason = _bad_joints(frame, rec.robot.n_joints)
+            if reason is not None:
+                run.skipped[reason] += 1
+                _warn(f"warning: skipping frame {frame.index}: joint vector has {len(frame.q)} "
+                      f"finite={bool(np.all(np.isfinite(frame.q)))} values, expected {rec.robot.n_joints}", quiet)
                 continue
             est, det, obs, ms = pipe.step(frame)
             t = time.perf_counter()
             tip = tip_pixel(ctx, frame.q, est.E)
             total_ms = t_decode + sum(ms.values())
-            extras = _extras(est, extra)
-            writer.write(frame.index, frame.stamp, est.E, tip, total_ms, extras)
+            writer.write(frame.index, frame.stamp, est.E, tip, total_ms, _extras(est, extra))
             if overlay is not None:
                 overlay.write(frame, est, det, obs, tip)
             ms["write"] = 1e3 * (time.perf_counter() - t)
-            frame_ms.append(1e3 * (time.perf_counter() - t0))
             ms["decode"] = t_decode
-            for s in STAGES:
-                stage_ms[s].append(ms.get(s, 0.0))
-            frames.append(frame.index)
-            tips.append(tip)
-            rows.append((frame.index, frame.stamp, frame.q, total_ms))
-        refined = pipe.estimator.finish() if hasattr(pipe.estimator, "finish") else None
-        if refined is not None:
-            tips = []
-            new_rows = []
-            for (fi, stamp, q, ms_), est in zip(rows, refined):
-                tip = tip_pixel(ctx, q, est.E)
-                tips.append(tip)
-                new_rows.append((fi, stamp, est.E, tip, ms_, _extras(est, extra)))
-            writer.rewrite_all(new_rows)
+            run.add(frame, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
+        _refine(pipe, run, writer, extra)
     wall = time.perf_counter() - t_wall
     if bar is not None:
         bar.close()
     if overlay is not None:
         overlay.close()
-    tips_arr = np.asarray(tips, dtype=float).reshape(-1, 2)
-    result = {"estimator": options.estimator, "observation": options.observation,
-              "detector": options.detector, "frames_tracked": len(frames),
-              "skipped_reasons": dict(skipped), "frames_skipped": int(sum(skipped.values()))}
-    if rec.labels is not None:
-        result.update(tip_metrics(frames, tips_arr, rec.labels, ctx.camera.diagonal, dict(skipped), n))
-    result.update(evaluate_against_truth(path, out, rec.robot, {r[0]: r[2] for r in rows}))
-    result["timing_ms_median"] = {s: float(np.median(v)) if v else 0.0 for s, v in stage_ms.items()}
-    result["fps"] = float(len(frames) / wall) if wall > 0 else float("nan")
-    # steady state: every per-frame cost (decode ... write) of frames 1.. (frame 0 also
-    # pays the start-up: the bag's joint pass, first use of the detector), no finish()
-    steady = frame_ms[1:] if len(frame_ms) > 1 else frame_ms
-    result["frame_ms_mean"] = float(np.mean(steady)) if steady else float("nan")
-    result["fps_steady"] = float(1e3 / np.mean(steady)) if steady else float("nan")
-    result["wall_s"] = float(wall)
+    result = _result(path, out, options, rec, ctx, run)
+    result.update(run.summary(wall))
     (out / "metrics.json").write_text(json.dumps(result, indent=2))
+    return result
+
+
+def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, run: _Run) -> dict:
+    """metrics.json's run description, skip counts, tip metrics (labels.csv) and truth metrics (truth.csv)."""
+    result = {"estimator": options.estimator, "observation": options.observation,
+              "detector": options.detection.detector, "frames_tracked": len(run.frames),
+              "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values()))}
+    if rec.labels is not None:
+        tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
+        result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))
+    result.update(evaluate_against_truth(path, out, rec.robot, {r[0]: r[2] for r in run.rows}))
     return result
 
 

@@ -79,7 +79,7 @@ def test_no_edge_bias_reaches_the_estimator(rec, tmp_path, command, estimator):
     by default it is on, for the pixel models and the polar models alike."""
     from graphtrack.cli import build_parser
     from graphtrack.commands.track import options_from_args
-    from graphtrack.estimate.context import TrackingContext
+    from graphtrack.io.context import TrackingContext
     from graphtrack.estimate import make_estimator
     from graphtrack.io.recording import open_recording
 
@@ -90,5 +90,5 @@ def test_no_edge_bias_reaches_the_estimator(rec, tmp_path, command, estimator):
                                    ([], "line-intensities-polar", True),
                                    (["--no-edge-bias"], "line-intensities-polar", False)):
         opts = options_from_args(build_parser().parse_args(base + extra + ["--observation", observation]))
-        est = make_estimator(estimator, ctx, observation=observation, **opts.estimator_options)
+        est = make_estimator(estimator, ctx, **opts.estimation.keywords(estimator))
         assert est.bias is on, (extra, observation)

@@ -24,10 +24,12 @@ def _compare(rec_paths, out, *extra):
 
 
 @pytest.mark.slow
-def test_compare_writes_table_csv_png_and_resumes(rec, tmp_path):
+def test_compare_writes_table_csv_png_and_resumes(rec, tmp_path, capsys):
     out = tmp_path / "study"
     rc = _compare([rec], out, "--estimators", "kinematics,pf", "--observations", "line-intensities")
     assert rc == 0
+    printed = capsys.readouterr().out   # --quiet drops the progress and the notes, never the table
+    assert "line-intensities" in printed and "kinematics" in printed
     with (out / "table.csv").open() as f:
         rows = list(csv.reader(f))
     assert rows[0] == ["observation", "estimator", "rec", "rec_std"]
@@ -49,11 +51,12 @@ def test_compare_writes_table_csv_png_and_resumes(rec, tmp_path):
 
     # an interrupted study (one cell without done.json) recomputes only that cell
     (cells[1] / "done.json").unlink()
-    from graphtrack.eval.study import StudyOptions, run_study
+    from graphtrack.estimate.options import EstimatorOptions
+    from graphtrack.study import StudyOptions, run_study
 
     data = run_study([str(rec)], out, StudyOptions(estimators=["kinematics", "pf"],
                                                    observations=["line-intensities"], max_frames=12,
-                                                   particles=64), quiet=True)
+                                                   estimation=EstimatorOptions(particles=64)), quiet=True)
     assert (data["ran"], data["reused"]) == (1, 1)
     assert (cells[0] / "done.json").stat().st_mtime_ns == mtimes[cells[0]]
     assert (cells[1] / "done.json").is_file()

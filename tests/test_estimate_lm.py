@@ -4,9 +4,9 @@ import numpy as np
 
 from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.batch import BatchEstimator
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
 
 

@@ -33,8 +33,8 @@ def test_track_writes_overlay_with_one_frame_per_tracked_frame(rec, tmp_path):
 
 def test_draw_overlay_marks_tip_label_detection(rec):
     from graphtrack.detect.base import Detection, Observation
-    from graphtrack.estimate.base import Frame
-    from graphtrack.estimate.context import TrackingContext
+    from graphtrack.io.frame import Frame
+    from graphtrack.io.context import TrackingContext
     from graphtrack.io.recording import open_recording
     from graphtrack.track import tip_pixel
 

@@ -8,15 +8,15 @@ import pytest
 from factors.edge_bias import (SLOPE_SCALE, BiasTransitionError, bias_coefficients, bias_key,
                                bias_sigmas, bias_transition_factor, limb_bias, reference_direction,
                                transition)
-from factors.limb import limb_lines, line_matrix
-from factors.limb import LimbPairing, ShaftAxis
+from factors.limb import LimbPairing
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.graph import left_error
+from graphtrack.geometry.cylinder import ShaftAxis, limb_line_coefficients, line_matrix
 from graphtrack.robot.features import base_features
 
 SCENE = make_scene()
@@ -66,7 +66,7 @@ def test_lateral_and_width_terms_by_hand(scene):
     edges by +d along limb 0's normal (a lateral shift) changes limb 0's residuals by
     +d and limb 1's by -d: limb_bias gives (w + l, w - l) on limbs (0, 1)."""
     robot, cam, E0, f, axis = scene
-    L = limb_lines(f.E_true, axis, line_matrix(cam.K), False)[0]
+    L = limb_line_coefficients(f.E_true, axis, line_matrix(cam.K), False)[0]
     n = L[:, :2] / np.hypot(L[:, 0], L[:, 1])[:, None]
     assert n[0] @ n[1] < -0.99
     b = np.array([0.5, 0.2, 0.1, -0.3])
@@ -161,8 +161,7 @@ def test_batch_marginals_with_bias_match_gtsam(every):
     block (23 frames) and a frame without detections."""
     robot, cam, E0, frames = sequence(23, seed=5, scene=SCENE, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5,
                                       marker_noise=2.0, pixels_per_edge=40)
-    est = make_estimator("batch", TrackingContext(robot, cam, E0), observation="line-intensities",
-                         edge_bias=True, edge_bias_every=every)
+    est = make_estimator("batch", TrackingContext(robot, cam, E0), edge_bias=True, edge_bias_every=every)
     for f in frames:
         obs = (Observation("line-intensities") if f.index == 7
                else Observation("line-intensities", pixels=f.pixels, markers=f.markers))
@@ -182,13 +181,13 @@ def test_batch_marginals_with_bias_match_gtsam(every):
 
 def _biased_frames(robot, cam, E0, frames, offset, slope):
     """Move every pixel set off its true limb i by offset_i + slope_i t / 100 px along
-    limb i's own normal (limb_lines orientation, into the shaft image), t along the
+    limb i's own normal (limb_line_coefficients orientation, into the shaft image), t along the
     edge oriented by the reference direction at E0: in every frame the same bias."""
     out = []
     for f in frames:
         F = base_features(robot, f.q)
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
-        L = limb_lines(f.E_true, axis, line_matrix(cam.K), False)[0]
+        L = limb_line_coefficients(f.E_true, axis, line_matrix(cam.K), False)[0]
         n = L[:, :2] / np.hypot(L[:, 0], L[:, 1])[:, None]
         direction = reference_direction(E0, F.shaft_p0[0], F.shaft_d[0], cam.K)
         sets = []
@@ -221,8 +220,7 @@ def _batch_errors_with_and_without_bias(robot, cam, E0, frames, observations) ->
     without (False) and with (True) the edge-bias state."""
     errs = {}
     for on in (False, True):
-        est = make_estimator("batch", TrackingContext(robot, cam, E0), observation=observations[0].model,
-                             edge_bias=on, covariance=False)
+        est = make_estimator("batch", TrackingContext(robot, cam, E0), edge_bias=on, covariance=False)
         for f, ob in zip(frames, observations):
             est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), ob)
         out = est.finish()
@@ -257,7 +255,7 @@ def test_biased_line_parameter_jacobians(scene, E_name):
 
 def _moved_line(L: np.ndarray, offset: float, slope: float, direction: np.ndarray, c: np.ndarray):
     """(rho, theta) of the line L = (A, B, C) moved by ``offset`` px along its normal
-    (A, B) (into the shaft image for limb_lines' orientation) at the foot of the
+    (A, B) (into the shaft image for limb_line_coefficients' orientation) at the foot of the
     point c, and turned by ``slope`` px per 100 px along ``direction``."""
     n = L[:2] / np.hypot(*L[:2])
     d0 = L[2] / np.hypot(*L[:2])                         # signed distance n.x + d0
@@ -282,7 +280,7 @@ def test_biased_line_matches_a_moved_limb(scene):
     from factors.line_parameter import LineParameterError
 
     robot, cam, E0, f, axis = scene
-    L = limb_lines(f.E_true, axis, line_matrix(cam.K), False)[0]
+    L = limb_line_coefficients(f.E_true, axis, line_matrix(cam.K), False)[0]
     direction = reference_direction(E0, axis.p0, axis.d, cam.K)
     b = np.array([0.4, -0.8, 1.5, 0.6])                # (l, l_s, w, w_s)
     for i in range(2):
@@ -310,7 +308,7 @@ def test_persistent_line_offset_no_longer_drags_the_batch():
     for f in frames:
         F = base_features(robot, f.q)
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
-        L = limb_lines(f.E_true, axis, line_matrix(cam.K), False)[0]
+        L = limb_line_coefficients(f.E_true, axis, line_matrix(cam.K), False)[0]
         direction = reference_direction(E0, axis.p0, axis.d, cam.K)
         lines = [_moved_line(L[i], o, s, direction, cam.K[:2, 2]) for i, o, s in ((0, 2.3, 2.0), (1, 1.7, 2.0))]
         moved.append(np.array([l + rng.normal(0, [0.5, 1e-3]) for l in lines]))

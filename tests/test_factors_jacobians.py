@@ -4,12 +4,13 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.limb import LimbPairing, ShaftAxis, limb_lines
+from factors.limb import LimbPairing
 from factors.line_parameter import LineParameterError, line_parameter_factor
 from factors.marker import MarkerError, marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from graphtrack.sim.synthetic import sequence
+from graphtrack.geometry.cylinder import ShaftAxis, limb_line_coefficients
 from graphtrack.robot.features import base_features
 
 
@@ -65,8 +66,8 @@ def test_tempered_pixel_set_scales_the_cost(scene, kernel):
     e1, J1 = full.evaluate(E0)
     e, J = check(part, gtsam.Pose3(E0), tol=2e-6)
     assert np.allclose(e, 0.5 * e1) and np.allclose(J, 0.5 * J1)
-    assert np.allclose(part.costs(limb_lines(E0, axis, part.M, False)[0]),
-                       0.25 * full.costs(limb_lines(E0, axis, full.M, False)[0]))
+    assert np.allclose(part.costs(limb_line_coefficients(E0, axis, part.M, False)[0]),
+                       0.25 * full.costs(limb_line_coefficients(E0, axis, full.M, False)[0]))
 
 
 def test_pairing_gives_the_two_edges_different_limbs(scene):
@@ -93,7 +94,7 @@ def test_pairing_gives_the_two_edges_different_limbs(scene):
     for fn in paired:
         check(fn, gtsam.Pose3(E), tol=2e-6)
     assert {paired[0].limb, paired[1].limb} == {0, 1}
-    L = limb_lines(E, axis, paired[0].M, False)[0]
+    L = limb_line_coefficients(E, axis, paired[0].M, False)[0]
     cost = [fn.costs(L) for fn in paired]
     chosen = cost[0][paired[0].limb] + cost[1][paired[1].limb]
     assert chosen <= cost[0][1 - paired[0].limb] + cost[1][1 - paired[1].limb]

@@ -39,7 +39,19 @@ def test_handeye_roundtrip(tmp_path):
 def test_handeye_single_arm_any_prefix_and_opencv_header(tmp_path):
     p = tmp_path / "handeye.yaml"
     p.write_text("%YAML:1.0\nPSM2_tvec: [1, 2, 3]\nPSM2_rvec: {data: [0, 0, 0]}\n")
-    np.testing.assert_allclose(load_handeye(p, arm="PSM1")[:3, 3], [0.001, 0.002, 0.003])
+    np.testing.assert_allclose(load_handeye(p)[:3, 3], [0.001, 0.002, 0.003])
+    np.testing.assert_allclose(load_handeye(p, arm="PSM2")[:3, 3], [0.001, 0.002, 0.003])
+
+
+def test_handeye_named_arm_must_exist_and_several_arms_need_a_choice(tmp_path):
+    p = tmp_path / "handeye.yaml"
+    p.write_text("PSM2_tvec: [1, 2, 3]\nPSM2_rvec: [0, 0, 0]\n")
+    with pytest.raises(InputError, match=r"PSM1_tvec.*PSM2.*--arm"):
+        load_handeye(p, arm="PSM1")
+    p.write_text("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, 0, 0]\nPSM3_tvec: [4, 5, 6]\nPSM3_rvec: [0, 0, 0]\n")
+    with pytest.raises(InputError, match=r"several arms \(PSM1, PSM3\).*--arm"):
+        load_handeye(p)
+    np.testing.assert_allclose(load_handeye(p, arm="PSM3")[:3, 3], [0.004, 0.005, 0.006])
 
 
 @pytest.mark.parametrize("text,needle", [
@@ -49,7 +61,7 @@ def test_handeye_single_arm_any_prefix_and_opencv_header(tmp_path):
     ("PSM1_tvec: [1, 2]\nPSM1_rvec: [0, 0, 0]\n", "PSM1_tvec"),
     ("PSM1_tvec: [1, 2, .nan]\nPSM1_rvec: [0, 0, 0]\n", "PSM1_tvec"),
     ("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, .inf, 0]\n", "PSM1_rvec"),
-    ("PSM2_tvec: [1, 2, 3]\nPSM2_rvec: [0, 0, 0]\nPSM3_tvec: [1, 2, 3]\n", "PSM1_tvec"),
+    ("PSM2_tvec: [1, 2, 3]\nPSM2_rvec: [0, 0, 0]\nPSM3_tvec: [1, 2, 3]\n", "several arms"),
     ("[1, 2, 3]\n", "mapping"),
     ("PSM1_tvec: [1, 2\n", "YAML"),
 ])

@@ -10,7 +10,7 @@ def test_labels_lie_on_true_limb_lines():
     from graphtrack.geometry.lines import line_difference, line_through
     from graphtrack.robot.features import base_features, shaft_lines
     from graphtrack.sim.simulate import Simulation
-    from graphtrack.detect.training.labels import shaft_edge_segments
+    from graphtrack.training.labels import shaft_edge_segments
 
     sim = Simulation("tissue", 5, seed=11, size=(270, 480))
     cam = sim.camera
@@ -25,7 +25,7 @@ def test_labels_lie_on_true_limb_lines():
 
 
 def test_target_maps():
-    from graphtrack.detect.training.labels import target_maps
+    from graphtrack.training.labels import target_maps
 
     seg = np.full((1, 2, 4), np.nan, np.float32)
     seg[0, 0] = [5, 5, 30, 5]

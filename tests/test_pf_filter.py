@@ -4,7 +4,7 @@ import pytest
 
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
+from graphtrack.io.frame import Frame
 from graphtrack.estimate.particle_filter import STD_COLUMNS, ParticleFilter
 from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe, pose_error
 
@@ -44,7 +44,7 @@ def run(pf, world, model, frames, rng, hidden=(), **obs_kw):
 def test_converges_from_3mm_2deg(model):
     world = World(b=(0.003, 0.0, 0.0), w_deg=(0.0, 2.0, 0.0))
     assert pose_error(world.ctx.handeye, world.E_true)[1] == pytest.approx(2.0)
-    pf = make_estimator("pf", world.ctx, observation=model, particles=1000, seed=0)
+    pf = make_estimator("pf", world.ctx, particles=1000, seed=0)
     errs = run(pf, world, model, range(120), np.random.default_rng(0), pixel_noise=0.0, outliers=0.0)
     final = errs[-10:].mean(0)
     assert final[0] < 0.5 and final[1] < 0.25, final
@@ -54,7 +54,7 @@ def test_estimate_fields_and_determinism():
     world = World()
     out = []
     for _ in range(2):
-        pf = ParticleFilter(world.ctx, observation="canny", seed=3)
+        pf = ParticleFilter(world.ctx, seed=3)
         est = pf.step(frame(0), world.observation(0, "canny", np.random.default_rng(0)))
         out.append(est)
     np.testing.assert_array_equal(out[0].E, out[1].E)
@@ -78,7 +78,7 @@ def test_empty_frames_leave_weights_unchanged():
 def test_hidden_shaft_then_reacquire():
     world = World(b=(0.002, -0.001, 0.0), w_deg=(1.0, 0.0, -1.0))
     model = "line-intensities-polar"
-    pf = ParticleFilter(world.ctx, observation=model, seed=1)
+    pf = ParticleFilter(world.ctx, seed=1)
     rng = np.random.default_rng(1)
     a = run(pf, world, model, range(80), rng)
     assert a[-1, 0] < 0.5
@@ -91,7 +91,7 @@ def test_hidden_shaft_then_reacquire():
 
 
 def test_absurd_observations_never_kill_the_weights():
-    pf = ParticleFilter(SCENE.ctx, observation="line-intensities", seed=0)
+    pf = ParticleFilter(SCENE.ctx, seed=0)
     absurd = [Observation("line-intensities", pixels=[np.full((20, 2), 1e15)],
                           markers=np.array([[-1e9, 1e9]])),
               Observation("line-intensities", pixels=[np.array([[np.nan, np.inf]]), np.zeros((5, 2))]),

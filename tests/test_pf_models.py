@@ -49,7 +49,7 @@ def test_true_pose_scores_highest(scene, model, t):
     q = scene.joints(t)
     obs = scene.observation(q, model, rng, pixel_noise=0.5, outliers=0.05,
                             line_noise=(0.2, 0.002), marker_noise=0.5)
-    pf = ParticleFilter(scene.ctx, observation=model)
+    pf = ParticleFilter(scene.ctx)
     ll = pf.log_likelihood(q, obs, perturbed(scene.x_true))
     assert np.all(np.isfinite(ll))
     assert np.all(ll[0] > ll[1:]), ll - ll[0]
@@ -62,7 +62,7 @@ def test_shaft_only_true_pose_not_worse(scene, model):
     q = scene.joints(0)
     obs = scene.observation(q, model, np.random.default_rng(0), pixel_noise=0.0, outliers=0.0,
                             markers=False)
-    pf = ParticleFilter(scene.ctx, observation=model, markers=False)
+    pf = ParticleFilter(scene.ctx, markers=False)
     ll = pf.log_likelihood(q, obs, perturbed(scene.x_true))
     assert np.all(ll[0] >= ll[1:] - 1e-3)
 
@@ -70,7 +70,7 @@ def test_shaft_only_true_pose_not_worse(scene, model):
 def test_polar_pairing_is_order_free(scene):
     q = scene.joints(0)
     obs = scene.observation(q, "canny", np.random.default_rng(0))
-    pf = ParticleFilter(scene.ctx, observation="canny", markers=False)
+    pf = ParticleFilter(scene.ctx, markers=False)
     h = pf.hypotheses(q, perturbed(scene.x_true))
     a = om.polar_loglik(h["rho"], h["theta"], obs.lines)
     b = om.polar_loglik(h["rho"], h["theta"], obs.lines[::-1])
@@ -133,7 +133,7 @@ def test_invalid_and_empty(scene):
 @pytest.mark.parametrize("model", ["canny", "line-intensities"])
 def test_absurd_observations_stay_finite(scene, model):
     q = scene.joints(0)
-    pf = ParticleFilter(scene.ctx, observation=model)
+    pf = ParticleFilter(scene.ctx)
     if model in POLAR_MODELS:
         obs = Observation(model, lines=np.array([[1e12, 7.0], [np.nan, 0.0], [-1e30, -1e9]]),
                           markers=np.array([[np.inf, 0], [1e9, -1e9]]))
@@ -143,24 +143,6 @@ def test_absurd_observations_stay_finite(scene, model):
                           markers=np.array([[np.nan, 0], [1e12, 3]]))
     ll = pf.log_likelihood(q, obs)
     assert np.all(np.isfinite(ll))
-
-
-def test_lean_limb_lines_match_cylinder_projection():
-    from graphtrack.estimate.pf.projection import limb_lines, line_angles
-    from graphtrack.geometry.cylinder import project_cylinder
-
-    rng = np.random.default_rng(0)
-    p0 = rng.standard_normal((20000, 3)) * 0.1 + [0, 0, 0.1]
-    d = rng.standard_normal((20000, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    K = np.array([[1000.0, 0, 640], [0, 1000, 512], [0, 0, 1]])
-    a = project_cylinder(p0, d, 0.004, K)
-    rho, cos, sin, valid = limb_lines(p0.T, d.T, 0.004, K)
-    theta = line_angles(cos, sin)
-    np.testing.assert_array_equal(a[2], valid)
-    v = a[2]
-    np.testing.assert_allclose(rho.T[v], a[0][v], rtol=1e-12, atol=1e-6)
-    np.testing.assert_allclose(theta.T[v], a[1][v], atol=1e-12)
 
 
 def test_particle_rotations_match_scipy():

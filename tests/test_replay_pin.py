@@ -44,11 +44,13 @@ STD = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
 def _run(case: str, out: Path) -> Path:
     import torch
 
+    from graphtrack.detect.options import DetectionOptions
     from graphtrack.track import TrackOptions, track
 
     torch.set_num_threads(1)
     estimator, detector, observation = CASES[case]
-    opts = TrackOptions(estimator=estimator, detector=detector, observation=observation, seed=3)
+    opts = TrackOptions(estimator=estimator, detection=DetectionOptions(detector=detector), observation=observation,
+                        seed=3)
     track(RECORDING, out, opts, progress=False, quiet=True)
     return out / "trajectory.csv"
 

@@ -1,12 +1,14 @@
 """Fixed-lag smoother and batch refinement on synthetic sequences generated from the geometry."""
+from functools import partial
+
 import numpy as np
 import pytest
 
 from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.base import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.graph import STD_COLUMNS, left_error
 
 SCENE = make_scene()
@@ -116,6 +118,7 @@ def test_nees_consistent_over_independent_runs():
     from graphtrack.estimate.smoother import FixedLagSmootherEstimator
 
     kw = dict(runs=60, first=40, last=41, pixel_noise=1.5, marker_noise=2.0, pixels_per_edge=60)
+    kw["sequence"] = partial(sequence, scene=SCENE)
     res = monte_carlo_nees(lambda ctx: FixedLagSmootherEstimator(ctx, pixel_effective_count=0, edge_bias=False),
                            **kw)
     assert res.band == pytest.approx((5.155, 6.908), abs=1e-3)
@@ -205,7 +208,7 @@ def test_polar_lines_join_the_edge_bias_state_once_settled():
     f = frames[0]
     obs = Observation("line-intensities-polar", lines=f.lines, markers=f.markers)
     for line_bias, n_keys in ((False, 1), (True, 2)):
-        shaft, _ = frame_factor_groups(0, f.q, obs, robot, cam.K, FactorOptions(), "line-intensities-polar", E0,
+        shaft, _ = frame_factor_groups(0, f.q, obs, robot, cam.K, FactorOptions(), E0,
                                        line_bias=line_bias)
         assert len(shaft) == 2 and all(len(fac.keys()) == n_keys for fac in shaft)
 

@@ -3,15 +3,19 @@ import numpy as np
 import pytest
 
 from graphtrack.sim.synthetic import Q0, make_scene
-from graphtrack.estimate.base import Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
+from graphtrack.detect.options import DetectionOptions
+from graphtrack.estimate.options import EstimatorOptions
 from graphtrack.track import MAX_GATE_PX, Pipeline, TrackOptions
+
+CANNY = DetectionOptions(detector="canny")
 
 
 @pytest.fixture(scope="module")
 def pipe():
     robot, cam, E0 = make_scene()
-    return Pipeline(TrackingContext(robot, cam, E0), TrackOptions(estimator="smoother", detector="canny"))
+    return Pipeline(TrackingContext(robot, cam, E0), TrackOptions(estimator="smoother", detection=CANNY))
 
 
 def test_gate_follows_the_estimate_std(pipe):
@@ -50,12 +54,12 @@ def test_marker_gates_are_in_detection_pixels():
 
     robot, cam, E0 = make_scene()
     ctx = TrackingContext(robot, cam, E0)
-    half = Pipeline(ctx, TrackOptions(estimator="smoother", detector="canny", detect_scale=0.5))
+    half = Pipeline(ctx, TrackOptions(estimator="smoother", detection=DetectionOptions(detector="canny", scale=0.5)))
     assert half.estimator.fopts.gate_scale == 2.0
-    pf = Pipeline(ctx, TrackOptions(estimator="pf", detector="canny", detect_scale=0.5,
-                                    estimator_options={"particles": 16}))
+    pf = Pipeline(ctx, TrackOptions(estimator="pf", detection=DetectionOptions(detector="canny", scale=0.5),
+                                    estimation=EstimatorOptions(particles=16)))
     assert pf.estimator.marker_gate == pytest.approx(2.0 * om.MARKER_GATE)
-    full = Pipeline(ctx, TrackOptions(estimator="smoother", detector="canny", detect_scale=1.0))
+    full = Pipeline(ctx, TrackOptions(estimator="smoother", detection=DetectionOptions(detector="canny", scale=1.0)))
     assert full.estimator.fopts.gate_scale == 1.0
 
     # a marker detected 90 px from its prediction: outside a 60 px gate, inside 60 * 2
@@ -78,8 +82,8 @@ def test_batch_gates_its_detector_like_the_smoother():
 
     robot, cam, E0, frames = sequence(5, seed=3)
     ctx = TrackingContext(robot, cam, E0)
-    smoother = Pipeline(ctx, TrackOptions(estimator="smoother", detector="canny", observation="canny"))
-    batch = Pipeline(ctx, TrackOptions(estimator="batch", detector="canny", observation="canny"))
+    smoother = Pipeline(ctx, TrackOptions(estimator="smoother", detection=CANNY, observation="canny"))
+    batch = Pipeline(ctx, TrackOptions(estimator="batch", detection=CANNY, observation="canny"))
     for f in frames:
         frame = Frame(f.index, f.stamp, None, f.q[:6], f.q[6])
         obs = Observation("canny", lines=f.lines, markers=f.markers)

@@ -14,28 +14,30 @@ import argparse
 import sys
 from pathlib import Path
 
+from graphtrack.commands.track import FORMATTER
+from graphtrack.detect.options import DetectionOptions
+from graphtrack.errors import InputError
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.sim.simulate import cached_recording
+from graphtrack.study import StudyOptions, format_table, run_study
+
 #: Demo defaults: short recordings at the camera's half resolution.
 FRAMES = 150
 SIZE = (540, 960)
-PARTICLES = 1000
 SEED = 0
 
 
 def default_detector() -> tuple[str, str | None]:
     """('learned', None) when the shipped learned-detector weights exist, else ('canny', None)."""
-    try:
+    try:  # the learned detector needs torch, an optional dependency
         from graphtrack.detect.learned import DEFAULT_WEIGHTS
     except ImportError:
         return "canny", None
     return ("learned", None) if Path(DEFAULT_WEIGHTS).is_file() else ("canny", None)
 
 
-def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZE, particles: int = PARTICLES,
-             quiet: bool = False, detector: str | None = None) -> dict:
-    from graphtrack.errors import InputError
-    from graphtrack.eval.study import StudyOptions, format_table, run_study
-    from graphtrack.sim.simulate import cached_recording
-
+def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZE,
+             particles: int = EstimatorOptions.particles, quiet: bool = False, detector: str | None = None) -> dict:
     if frames <= 0:
         raise InputError("--frames must be positive")
     out = Path(out)
@@ -49,7 +51,8 @@ def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZ
     for scene in ("structured", "tissue"):
         recs.append(str(cached_recording(scene, frames=frames, seed=SEED, size=size, progress=not quiet)))
     options = StudyOptions(estimators=["kinematics", "pf", "smoother"], observations=["line-intensities"],
-                           detector=detector, particles=particles, seed=SEED)
+                           detection=DetectionOptions(detector=detector),
+                           estimation=EstimatorOptions(particles=particles, seed=SEED), seed=SEED)
     say(f"graphtrack demo: kinematics, particle filter ({particles} particles) and fixed-lag smoother, "
         f"observation line-intensities, detector {detector}")
     tissue = recs[1]
@@ -87,11 +90,12 @@ def run(args) -> int:
 
 def add_parser(sub):
     p = sub.add_parser("demo", help="simulate two short recordings and compare the estimators on them",
+                       formatter_class=FORMATTER,
                        description="Simulate a structured and a tissue recording (cached), track them "
                                    "with the kinematics baseline, the particle filter and the smoother, "
                                    "and write the error table, plots and an overlay video.")
     p.add_argument("--out", default="graphtrack-demo", metavar="DIR",
-                   help="output folder (default: ./graphtrack-demo)")
+                   help="output folder")
     p.add_argument("--frames", type=int, default=FRAMES, help=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)

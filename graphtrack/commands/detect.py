@@ -22,10 +22,21 @@ import sys
 import time
 
 import numpy as np
+from tqdm import tqdm
 
+from graphtrack.commands.track import FORMATTER, add_detection_arguments
+from graphtrack.detect import make_detector
+from graphtrack.detect.draw import draw_detection
+from graphtrack.detect.observe import make_observation
+from graphtrack.detect.options import DetectionOptions
+from graphtrack.detect.pixel_sets import endpoints_set, line_set
 from graphtrack.errors import FrameError, InputError
-
-DETECTORS = ("canny", "learned", "sold2")
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.outdir import writable_dir
+from graphtrack.io.recording import open_recording
+from graphtrack.io.topics import TopicSelection
+from graphtrack.io.video import StampedVideoWriter
+from graphtrack.robot.features import base_features, shaft_lines
 
 
 def _num(x) -> str:
@@ -33,35 +44,25 @@ def _num(x) -> str:
     return repr(round(x, 4)) if np.isfinite(x) else "nan"
 
 
-def detect_recording(path, out, detector: str = "learned", weights: str | None = None, video: bool = False,
-                     max_frames: int | None = None, alpha: float = 10.0, beta: float = 0.9,
-                     quiet: bool = False) -> dict:
-    """Detect on every frame of a recording; write detections.csv (and detections.mp4)."""
-    from graphtrack.detect.pixel_sets import endpoints_set, line_set
-    from graphtrack.estimate.context import TrackingContext
-    from graphtrack.io.recording import open_recording
-    from graphtrack.io.outdir import writable_dir
-    from graphtrack.robot.features import base_features, shaft_lines
-
-    rec = open_recording(path)
+def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), video: bool = False,
+                     max_frames: int | None = None, quiet: bool = False,
+                     topics: TopicSelection = TopicSelection()) -> dict:
+    """Detect on every frame of a recording; write detections.csv (and detections.mp4).
+    Of ``options`` it uses detector, weights, alpha and beta (at full size); ``topics``:
+    the arm and bag topics to read (default: detected)."""
+    rec = open_recording(path, topics=topics)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(out)
-    from graphtrack.detect import make_detector
-
-    det = make_detector(detector, **({"weights": weights} if weights else {}))
+    detector, alpha, beta = options.detector, options.alpha, options.beta
+    det = make_detector(detector, **options.detector_keywords())
     writer = None
     if video:
-        import cv2
-
-        writer = cv2.VideoWriter(str(out / "detections.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 15.0,
-                                 (ctx.camera.width, ctx.camera.height))
+        writer = StampedVideoWriter(out / "detections.mp4")
     header = ["frame", "n_segments", "n_edges"]
     for i in range(2):
         header += [f"{k}_{i}" for k in ("rho", "theta", "x1", "y1", "x2", "y2", "Ee", "El")]
     header += ["n_markers", "markers", "ms"]
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
-    from tqdm import tqdm
-
     n = skipped = 0
     ms_all = []
     with (out / "detections.csv").open("w", newline="") as f, \
@@ -104,13 +105,10 @@ def detect_recording(path, out, detector: str = "learned", weights: str | None =
             w.writerow(row)
             f.flush()
             if writer is not None:
-                from graphtrack.detect.draw import draw_detection
-                from graphtrack.detect.observe import make_observation
-
                 obs = make_observation(d, "line-intensities", alpha=alpha, beta=beta, use_markers=True)
-                writer.write(draw_detection(und, d, obs))
+                writer.write(draw_detection(und, d, obs), item.stamp)
     if writer is not None:
-        writer.release()
+        writer.close()
     return {"frames": n, "frames_skipped": skipped,
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
 
@@ -118,8 +116,8 @@ def detect_recording(path, out, detector: str = "learned", weights: str | None =
 def run(args) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
-    res = detect_recording(args.sequence, args.out, args.detector, args.weights, args.video, args.max_frames,
-                           args.alpha, args.beta, args.quiet)
+    options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
+    res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet)
     if not args.quiet:
         print(f"{res['frames']} frames ({res['frames_skipped']} skipped), detector median "
               f"{res['ms_median']:.1f} ms; wrote {args.out}/detections.csv"
@@ -128,16 +126,13 @@ def run(args) -> int:
 
 
 def add_parser(sub):
-    p = sub.add_parser("detect", help="run a shaft/marker detector over a recording",
+    p = sub.add_parser("detect", help="run a shaft/marker detector over a recording", formatter_class=FORMATTER,
                        description="Detect the shaft edges, pixel sets and markers in every frame and "
                                    "write detections.csv (and --video detections.mp4).")
     p.add_argument("sequence", metavar="SEQ", help="recording folder")
-    p.add_argument("--out", required=True, metavar="DIR")
-    p.add_argument("--detector", choices=DETECTORS, default="learned")
-    p.add_argument("--weights", metavar="FILE", help="weights for --detector learned/sold2")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_detection_arguments(p)
     p.add_argument("--video", action="store_true", help="also write detections.mp4")
-    p.add_argument("--max-frames", type=int, default=None, metavar="N")
-    p.add_argument("--alpha", type=float, default=10.0, help="pixel-set radius alpha (px)")
-    p.add_argument("--beta", type=float, default=0.9, help="pixel-set heatmap threshold beta")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="detect on at most N frames (None: all)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

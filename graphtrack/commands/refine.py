@@ -6,20 +6,19 @@ recording) and the refined trajectory replaces the streamed one.
 """
 from __future__ import annotations
 
-from graphtrack.commands.track import add_tracking_arguments
+from graphtrack.commands.track import FORMATTER, add_tracking_arguments
+from graphtrack.commands.track import run as track_run
 
 
 def run(args) -> int:
-    from graphtrack.commands.track import run as track_run
-
     args.estimator = "batch"
     return track_run(args)
 
 
 def add_parser(sub):
-    p = sub.add_parser("refine", help="offline batch refinement of a whole recording",
+    p = sub.add_parser("refine", help="offline batch refinement of a whole recording", formatter_class=FORMATTER,
                        description="Refine the lumped error E over a whole recording offline (the "
                                    "batch estimator) and write trajectory.csv, trajectory.tum and "
                                    "metrics.json.")
-    add_tracking_arguments(p, estimators=("batch",), default_estimator="batch")
+    add_tracking_arguments(p, estimators=("batch",), default_estimator="batch", smoother_options=False)
     p.set_defaults(func=run)

@@ -1,9 +1,11 @@
 """``graphtrack simulate OUT``: write a synthetic recording with exact ground truth."""
 from __future__ import annotations
 
+import argparse
 import re
 
 from graphtrack.errors import InputError
+from graphtrack.sim import simulate
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -15,25 +17,30 @@ def _size(text: str) -> tuple[int, int]:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("simulate", help="write a synthetic dVRK recording with ground truth (truth.csv)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        description="Render a synthetic dVRK PSM + Large Needle Driver recording in the "
                                    "sequence format, plus truth.csv (true E_t and tool tip).")
     p.add_argument("out", metavar="OUT", help="output folder")
     p.add_argument("--scene", default="structured", help="structured (white bench) or tissue")
     p.add_argument("--frames", type=int, default=300, help="number of frames (30 fps)")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same recording)")
-    p.add_argument("--size", default="540x960", help="image size HxW (default 540x960)")
+    p.add_argument("--size", default="540x960", help="image size HxW")
     p.add_argument("--compressed", action="store_true", help="PNG CompressedImage messages in the bag")
     p.add_argument("--form", default="bag", help="bag (ROS 1 bag) or folder (frames/ + joints.csv)")
-    p.add_argument("--randomize", action="store_true", help="domain randomisation (detector training)")
+    p.add_argument("--randomize", action="store_true",
+                   help="randomized, harder recording (look, occlusions, out-of-view, smoke, blur, lighting, "
+                        "hand-eye error up to 10 mm / 5 deg; writes scenario.json; "
+                        "docs/randomized-recordings.md): robustness benchmarks and detector training")
+    p.add_argument("--stereo", action="store_true",
+                   help="also render the right camera (5 mm baseline, 2 deg vergence): right images, "
+                        "K2/D2/R/T, labels_right.csv; the left recording is unchanged")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from graphtrack.sim import simulate
-
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
-                   progress=args.progress)
+                   progress=args.progress, stereo=args.stereo)
     print(f"wrote {out}")
     return 0

@@ -1,82 +1,105 @@
-"""``graphtrack track SEQ --estimator ... --out DIR``: track one recording."""
+"""``graphtrack track SEQ --estimator ... --out DIR``: track one recording.
+
+The command line builds a :class:`graphtrack.track.TrackOptions` (with its
+:class:`~graphtrack.detect.options.DetectionOptions` and
+:class:`~graphtrack.estimate.options.EstimatorOptions`); every default shown by
+``--help`` is the dataclasses' own.
+"""
 from __future__ import annotations
 
+import argparse
 import json
 
+from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
+from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
+from graphtrack.detect.options import DetectionOptions
 from graphtrack.estimate import ESTIMATORS
+from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
+from graphtrack.track import TrackOptions, track
 
-DETECTORS = ("canny", "learned", "sold2")
+FORMATTER = argparse.ArgumentDefaultsHelpFormatter
 
 
-def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator="kinematics"):
-    """Arguments shared by ``track`` and ``refine``."""
+def add_detection_arguments(p, weights: bool = True) -> None:
+    """--detector, --weights, --alpha, --beta (the DetectionOptions a command exposes)."""
+    p.add_argument("--detector", choices=available_detectors(), default=DetectionOptions.detector,
+                   help="shaft/marker detector (learned: the shipped CPU line network)")
+    if weights:
+        p.add_argument("--weights", metavar="FILE", default=DetectionOptions.weights,
+                       help="weights for --detector learned/sold2 (None: the shipped ones)")
+    p.add_argument("--alpha", type=float, default=DetectionOptions.alpha, help="pixel-set radius alpha (px)")
+    p.add_argument("--beta", type=float, default=DetectionOptions.beta, help="pixel-set heatmap threshold beta")
+
+
+def add_estimator_arguments(p, particles: bool = True, smoother: bool = True) -> None:
+    """--particles (pf), --lag and --smoother (fixed-lag smoother), --seed."""
+    if particles:
+        p.add_argument("--particles", type=int, default=EstimatorOptions.particles,
+                       help="particle filter: number of particles")
+    if smoother:
+        p.add_argument("--lag", type=float, default=EstimatorOptions.lag, metavar="SECONDS",
+                       help="smoother: fixed lag")
+        p.add_argument("--smoother", choices=SMOOTHER_KINDS, default=EstimatorOptions.smoother,
+                       help="smoother: gtsam IncrementalFixedLagSmoother (isam2) or BatchFixedLagSmoother")
+    p.add_argument("--seed", type=int, default=TrackOptions.seed,
+                   help="seed of the RANSAC observation models and the particle filter")
+
+
+def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=TrackOptions.estimator,
+                           smoother_options: bool = True) -> None:
+    """Arguments shared by ``track`` and ``refine`` (refine: the batch only, no pf/smoother options)."""
     p.add_argument("sequence", metavar="SEQ", help="recording folder (bag or plain-folder form)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--estimator", choices=estimators, default=default_estimator)
-    p.add_argument("--observation", choices=OBSERVATION_MODELS, default="line-intensities",
-                   help="observation model of the method (default: line-intensities)")
-    p.add_argument("--detector", choices=DETECTORS, default="learned",
-                   help="shaft/marker detector (default: learned, the shipped CPU line network)")
-    p.add_argument("--detect-scale", type=float, default=None, metavar="S",
-                   help="detect on the undistorted image scaled by S (default: auto, at most 960 px wide)")
-    p.add_argument("--weights", metavar="FILE", help="weights for --detector learned/sold2")
+    p.add_argument("--estimator", choices=estimators, default=default_estimator, help="estimator of E")
+    p.add_argument("--observation", choices=OBSERVATION_MODELS, default=TrackOptions.observation,
+                   help="observation model of the method")
+    add_detection_arguments(p)
+    p.add_argument("--detect-scale", type=float, default=DetectionOptions.scale, metavar="S",
+                   help="detect on the undistorted image scaled by S (None: auto, at most 960 px wide)")
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
-    p.add_argument("--particles", type=int, default=1000, help="particle filter: number of particles")
-    p.add_argument("--lag", type=float, default=1.0, metavar="SECONDS", help="smoother: fixed lag")
-    p.add_argument("--smoother", choices=("isam2", "batch"), default="isam2",
-                   help="smoother: gtsam IncrementalFixedLagSmoother or BatchFixedLagSmoother")
+    add_estimator_arguments(p, particles=smoother_options, smoother=smoother_options)
     p.add_argument("--no-edge-bias", action="store_true",
                    help="smoother/batch: no edge-bias state (for edges or lines known to be unbiased)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--alpha", type=float, default=10.0, help="pixel-set radius alpha (px)")
-    p.add_argument("--beta", type=float, default=0.9, help="pixel-set heatmap threshold beta")
-    p.add_argument("--tip-feature", metavar="NAME",
-                   help="evaluate this robot.json point feature as the tool tip (default: tool_tip)")
-    p.add_argument("--max-frames", type=int, default=None, metavar="N")
+    p.add_argument("--tip-feature", metavar="NAME", default=TrackOptions.tip_feature,
+                   help="evaluate this robot.json point feature as the tool tip (None: robot.json's tool_tip)")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="track at most N frames (None: all)")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
+    add_threads_argument(p)
+    add_source_arguments(p)
 
 
-def options_from_args(args):
-    from graphtrack.errors import InputError
-    from graphtrack.track import TrackOptions
+def estimator_options_from_args(args) -> EstimatorOptions:
+    d = EstimatorOptions()
+    return EstimatorOptions(particles=getattr(args, "particles", d.particles), seed=args.seed,
+                            lag=getattr(args, "lag", d.lag), smoother=getattr(args, "smoother", d.smoother),
+                            edge_bias=not getattr(args, "no_edge_bias", False)).check()
 
-    if args.particles <= 0:
-        raise InputError("--particles must be positive")
-    if args.lag <= 0:
-        raise InputError("--lag must be positive")
-    detect_scale = getattr(args, "detect_scale", None)
-    if detect_scale is not None and not 0.05 <= detect_scale <= 1.0:
-        raise InputError("--detect-scale must be in [0.05, 1]")
-    est_opts = {}
-    if args.estimator == "pf":
-        est_opts = {"particles": args.particles, "seed": args.seed}
-    elif args.estimator == "smoother":
-        est_opts = {"lag": args.lag, "smoother": args.smoother}
-    if args.estimator in ("smoother", "batch") and getattr(args, "no_edge_bias", False):
-        est_opts["edge_bias"] = False
-    det_opts = {"weights": args.weights} if args.weights else {}
-    return TrackOptions(estimator=args.estimator, observation=args.observation, detector=args.detector,
-                        markers=not args.no_markers, estimator_options=est_opts, detector_options=det_opts,
-                        alpha=args.alpha, beta=args.beta, seed=args.seed, detect_scale=detect_scale,
-                        tip_feature=getattr(args, "tip_feature", None))
+
+def options_from_args(args) -> TrackOptions:
+    """The TrackOptions of a ``track`` / ``refine`` command line (InputError for bad values)."""
+    detection = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta,
+                                 markers=not args.no_markers, scale=args.detect_scale).check()
+    return TrackOptions(estimator=args.estimator, observation=args.observation, detection=detection,
+                        estimation=estimator_options_from_args(args), seed=args.seed,
+                        tip_feature=args.tip_feature)
 
 
 def run(args) -> int:
-    from graphtrack.track import track
-
     result = track(args.sequence, args.out, options_from_args(args), video=args.video,
-                   progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet)
+                   progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,
+                   topics=source_from_args(args))
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))
-        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json")
+        video = ", overlay.mp4" if args.video else ""
+        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json{video}")
     return 0
 
 
 def add_parser(sub):
-    p = sub.add_parser("track", help="track the lumped error E over one recording",
+    p = sub.add_parser("track", help="track the lumped error E over one recording", formatter_class=FORMATTER,
                        description="Track the lumped-error transform E over a recording and write "
                                    "trajectory.csv, trajectory.tum and metrics.json.")
     add_tracking_arguments(p)

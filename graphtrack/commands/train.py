@@ -1,9 +1,9 @@
 """``graphtrack train --out FILE``: train the learned detector's weights from simulated data.
 
 One reproducible command: it simulates the training frames
-(:func:`graphtrack.detect.training.data.generate`: both scenes, domain
+(:func:`graphtrack.training.data.generate`: both scenes, domain
 randomised, ground-truth shaft edges from truth), passes them through JPEG
-(q 95) and trains the network (:mod:`graphtrack.detect.training.fit`). The
+(q 95) and trains the network (:mod:`graphtrack.training.fit`). The
 shipped ``graphtrack/data/learned_detector.pt`` is
 
     graphtrack train --out graphtrack/data/learned_detector.pt --device cuda
@@ -16,34 +16,35 @@ one core, i.e. several hours for the full schedule.
 """
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 from graphtrack.errors import InputError
+from graphtrack.training.data import generate
+from graphtrack.training.fit import jpeg_roundtrip, save, train
 
 
 def add_parser(sub):
     p = sub.add_parser("train", help="train the learned detector on simulated frames",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
                        description="Simulate domain-randomised training frames (both scenes) and train the "
                                    "learned shaft-edge detector; writes a weights file for --detector learned.")
     p.add_argument("--out", required=True, metavar="FILE", help="weights file to write (.pt)")
-    p.add_argument("--frames", type=int, default=2400, help="training frames to simulate (default 2400)")
-    p.add_argument("--epochs", type=int, default=60, help="training epochs (default 60)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the data and of the training (default 0)")
-    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
-    p.add_argument("--batch", type=int, default=32, help="batch size (default 32)")
-    p.add_argument("--data", metavar="NPZ", help="reuse / write the simulated frames in this .npz cache")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--frames", type=int, default=2400, help="training frames to simulate")
+    p.add_argument("--epochs", type=int, default=60, help="training epochs")
+    p.add_argument("--seed", type=int, default=0, help="seed of the data and of the training")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="training device")
+    p.add_argument("--batch", type=int, default=32, help="batch size")
+    p.add_argument("--data", metavar="NPZ", help="reuse / write the simulated frames in this .npz cache (None: none)")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    import numpy as np
-
-    from graphtrack.detect.training.data import generate
-    from graphtrack.detect.training.fit import jpeg_roundtrip, save, train
-
     if args.frames <= 0:
         raise InputError("--frames must be positive")
     if args.epochs < 0:
@@ -51,7 +52,7 @@ def run(args) -> int:
     if args.batch <= 0:
         raise InputError("--batch must be positive")
     if args.device == "cuda":
-        import torch
+        import torch  # optional and heavy: imported when training
 
         if not torch.cuda.is_available():
             raise InputError("--device cuda: no CUDA device available")

@@ -23,6 +23,7 @@ from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.observe import make_observation
 from graphtrack.detect.pixel_sets import endpoint_set, endpoints_set, line_set
 from graphtrack.detect.ransac import RansacConfig, best_line, fit_line_tls, sequential_ransac
+from graphtrack.errors import InputError
 
 #: name -> "module:Class"; the class is built as Class(**kwargs).
 DETECTORS: dict[str, str] = {
@@ -48,8 +49,6 @@ def make_detector(name: str, **kwargs) -> Detector:
     """Build detector ``name`` with keyword options (e.g. ``make_detector("canny",
     votes=80)``). Unknown names and detectors whose module is not installed
     raise :class:`graphtrack.errors.InputError`."""
-    from graphtrack.errors import InputError
-
     if name not in DETECTORS:
         raise InputError(f"unknown detector '{name}' (choose from {', '.join(DETECTORS)})")
     module_name, _, attr = DETECTORS[name].partition(":")

@@ -3,7 +3,7 @@
 The method detects the shaft's silhouette edges with SOLD2 (segments + a
 line heatmap H) because Canny fails in low light, at 1-2 frames/s. Here a
 small fully-convolutional net (:mod:`graphtrack.detect.learned_net`) trained
-on domain-randomised simulated frames (:mod:`graphtrack.detect.training`)
+on domain-randomised simulated frames (:mod:`graphtrack.training`)
 predicts the same two outputs at camera rate:
 
 1. the undistorted BGR frame (H x W) is resized by ``scale`` (1/4: 540x960 ->

@@ -4,6 +4,8 @@
 ``make_estimator(name, ctx, **options)`` builds one by name:
 kinematics (baseline), pf (the method's particle filter), smoother (fixed-lag
 factor graph), batch (offline Levenberg-Marquardt over the whole recording).
+``estimator_class(name)`` gives its class (the protocol's class attributes)
+without building it.
 """
 from __future__ import annotations
 
@@ -11,7 +13,8 @@ import importlib
 
 from graphtrack.errors import InputError
 
-#: name -> (module, class)
+#: name -> (module, class); a module is imported only when its estimator is asked for
+#: (the factor-graph estimators need gtsam)
 ESTIMATORS = {
     "kinematics": ("graphtrack.estimate.kinematics", "KinematicsEstimator"),
     "pf": ("graphtrack.estimate.particle_filter", "ParticleFilter"),
@@ -20,9 +23,14 @@ ESTIMATORS = {
 }
 
 
-def make_estimator(name: str, ctx, **options):
-    """Instantiate estimator ``name`` with the tracking context and its options."""
+def estimator_class(name: str) -> type:
+    """The class of estimator ``name`` (unknown names raise InputError)."""
     if name not in ESTIMATORS:
         raise InputError(f"--estimator: unknown estimator {name!r} (choose from {', '.join(ESTIMATORS)})")
     module, cls = ESTIMATORS[name]
-    return getattr(importlib.import_module(module), cls)(ctx, **options)
+    return getattr(importlib.import_module(module), cls)
+
+
+def make_estimator(name: str, ctx, **options):
+    """Instantiate estimator ``name`` with the tracking context and its options."""
+    return estimator_class(name)(ctx, **options)

@@ -1,6 +1,6 @@
 """The one streaming interface every estimator implements.
 
-A :class:`Frame` is what a recording yields (raw image + joint readings); the
+A :class:`~graphtrack.io.frame.Frame` is what a recording yields (raw image + joint readings); the
 tracking loop (:mod:`graphtrack.track`) undistorts, detects and builds an
 :class:`~graphtrack.detect.base.Observation`, then asks the estimator for the
 lumped error E_t:
@@ -12,37 +12,16 @@ Estimators never see ground truth (truth.csv, labels.csv).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import ClassVar, Protocol
 
 import numpy as np
+
+from graphtrack.detect.base import Observation
+from graphtrack.io.frame import Frame
 
 #: trajectory.csv columns of an estimator's uncertainty: the standard deviations of
 #: the LEFT camera-frame correction E = Exp(xi) . E_hat, xi = (b [m], w [rad]).
 STD_COLUMNS = ("std_bx", "std_by", "std_bz", "std_wx", "std_wy", "std_wz")
-
-
-@dataclass
-class Frame:
-    """One synchronised frame of a recording.
-
-    index: 0-based frame number (bag order); stamp: seconds;
-    image: raw (distorted) left image, H x W x 3 uint8 BGR (None if not decoded);
-    joints: the DH joints' readings q~ (n,) in rad / m; jaw: jaw opening (rad),
-    NaN when the tool has no gripper.
-    """
-
-    index: int
-    stamp: float
-    image: np.ndarray | None
-    joints: np.ndarray
-    jaw: float = float("nan")
-
-    @property
-    def q(self) -> np.ndarray:
-        """The full joint vector the kinematics takes: DH joints, then jaw if finite."""
-        if np.isfinite(self.jaw):
-            return np.concatenate([self.joints, [self.jaw]])
-        return np.asarray(self.joints, dtype=float)
 
 
 def monotone_stamp(stamp, previous: float | None, fps: float) -> float:
@@ -75,12 +54,27 @@ class Estimate:
 
 
 class Estimator(Protocol):
-    """Streaming estimator of E_t. ``name`` is used in outputs and studies."""
+    """Streaming estimator of E_t: what the tracking loop and the studies use, declared
+    as class attributes by every estimator (read from the class, before building it).
 
-    name: str
+    name: the estimator's name in outputs and studies (``--estimator``);
+    uses_observations: False when it ignores images (the loop then skips
+    undistortion, detection and observation); stochastic: True when its
+    estimate depends on the seed (studies repeat it over seeds);
+    supported_observations: the observation models (``Observation.model``) it
+    can score, () for one that uses none; extra_columns: its trajectory.csv
+    columns beyond the standard ones (values from ``Estimate.extra`` / ``std``).
+    """
 
-    def step(self, frame: Frame, observation) -> Estimate:  # pragma: no cover - protocol
-        """Consume one frame and its observation (may be empty); return E_t."""
+    name: ClassVar[str]
+    uses_observations: ClassVar[bool]
+    stochastic: ClassVar[bool]
+    supported_observations: ClassVar[tuple[str, ...]]
+    extra_columns: ClassVar[tuple[str, ...]]
+
+    def step(self, frame: Frame, observation: Observation | None) -> Estimate:  # pragma: no cover - protocol
+        """Consume one frame and its observation (None: no images used; may be empty);
+        return E_t. The observation's ``model`` names its observation model."""
         ...
 
     def finish(self) -> list[Estimate] | None:  # pragma: no cover - protocol

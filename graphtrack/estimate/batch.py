@@ -33,18 +33,21 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame, monotone_stamp
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.detect.base import OBSERVATION_MODELS
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factors, gaussian_bw, key,
                                        left_from_right_cov, split_options)
 from factors.edge_bias import BIAS_DIM, bias_key
+from graphtrack.estimate.smoother import FixedLagSmootherEstimator
 
 
 class BatchEstimator:
     """Levenberg-Marquardt over the whole recording (see the module docstring).
 
-    Options: observation, markers, prior_sigma_b/_w, motion_sigma_b/_w (as
+    Options: markers, prior_sigma_b/_w, motion_sigma_b/_w (as
     the smoother), max_iterations, relative_tolerance, covariance,
     provisional ("last" | "smoother"), fps (the time step of frames without a
     stamp, for the edge-bias chain), plus FactorOptions.
@@ -52,9 +55,11 @@ class BatchEstimator:
 
     name = "batch"
     uses_observations = True
+    stochastic = False
+    supported_observations = OBSERVATION_MODELS
     extra_columns = STD_COLUMNS
 
-    def __init__(self, ctx: TrackingContext, observation: str = "line-intensities", markers: bool = True,
+    def __init__(self, ctx: TrackingContext, markers: bool = True,
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
                  motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
                  max_iterations: int = 30, relative_tolerance: float = 1e-3,
@@ -63,7 +68,6 @@ class BatchEstimator:
 
         self.gtsam = gtsam
         self.ctx = ctx
-        self.model = observation
         self.fopts, rest = split_options(dict(options, markers=markers))
         self.E0 = np.asarray(ctx.handeye, float)
         self.K = np.asarray(ctx.camera.K, float)
@@ -80,9 +84,7 @@ class BatchEstimator:
         self.initial: list[np.ndarray] = []
         self.online = None
         if provisional == "smoother":
-            from graphtrack.estimate.smoother import FixedLagSmootherEstimator
-
-            self.online = FixedLagSmootherEstimator(ctx, observation=observation, markers=markers,
+            self.online = FixedLagSmootherEstimator(ctx, markers=markers,
                                                     prior_sigma_b=prior_sigma_b, prior_sigma_w=prior_sigma_w,
                                                     motion_sigma_b=motion_sigma_b,
                                                     motion_sigma_w=motion_sigma_w, covariance=True,
@@ -113,7 +115,7 @@ class BatchEstimator:
                 graph.add(gtsam.PriorFactorPose3(key(0), gtsam.Pose3(self.E0), self.prior_noise))
             else:
                 graph.add(gtsam.BetweenFactorPose3(key(k - 1), key(k), gtsam.Pose3(), self.motion_noise))
-            for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.model, self.E0):
+            for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.E0):
                 graph.add(f)
             values.insert(key(k), gtsam.Pose3(self.initial[k]))
             if self.bias and k % self.every == 0:     # the bias of frames k .. k + every - 1

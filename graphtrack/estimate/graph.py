@@ -20,13 +20,14 @@ import numpy as np
 
 from factors.edge_bias import (bias_key, bias_prior_factor, bias_sigmas, bias_transition_factor,
                                reference_direction, transition)
-from factors.limb import LimbPairing, ShaftAxis
+from factors.limb import LimbPairing
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import shaft_pixels_factor
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
+from graphtrack.geometry.cylinder import ShaftAxis
 from graphtrack.robot.features import base_features, marker_discs
 
 #: (b, w) <-> gtsam (omega, v) reordering
@@ -230,15 +231,15 @@ def edge_bias_factors(k: int, dt: float | None, opts: FactorOptions) -> list:
 
 
 def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
-                  opts: FactorOptions, model: str | None = None, E_ref: np.ndarray | None = None) -> list:
+                  opts: FactorOptions, E_ref: np.ndarray | None = None) -> list:
     """The measurement factors of frame k (may be empty: no detections):
     :func:`frame_factor_groups`' shaft factors, then its marker factors."""
-    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, model, E_ref)
+    shaft, markers = frame_factor_groups(k, q, observation, robot, K, opts, E_ref)
     return shaft + markers
 
 
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
-                        opts: FactorOptions, model: str | None = None,
+                        opts: FactorOptions,
                         E_ref: np.ndarray | None = None, pose_key: int | None = None,
                         line_bias: bool = True) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
@@ -265,7 +266,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     kern = opts.kernel
     x = key(k) if pose_key is None else pose_key
     b = bias_key(k // opts.edge_bias_period) if opts.edge_bias else None
-    model = observation.model or model
+    model = observation.model
     if has_shaft and len(F.shaft_r):
         axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
         direction = None            # orients the bias slopes, the same way in every frame

@@ -1,8 +1,9 @@
 """The no-correction baseline: E_t = E_0 (handeye.yaml) for every frame."""
 from __future__ import annotations
 
-from graphtrack.estimate.base import Estimate, Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.base import Estimate
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.frame import Frame
 
 
 class KinematicsEstimator:
@@ -10,8 +11,11 @@ class KinematicsEstimator:
 
     name = "kinematics"
     uses_observations = False
+    stochastic = False
+    supported_observations = ()
+    extra_columns = ()
 
-    def __init__(self, ctx: TrackingContext, **_ignored):
+    def __init__(self, ctx: TrackingContext):
         self.E0 = ctx.handeye.copy()
 
     def step(self, frame: Frame, observation=None) -> Estimate:

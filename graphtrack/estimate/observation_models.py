@@ -80,7 +80,7 @@ The huber set is not the default: with it the synthetic convergence tests
 end at 4.4 mm (canny) / 2.5 mm (line-intensities) instead of < 0.5 mm; the
 huber marker loss and roughening 0.3 are what break them (laplace gate 20 +
 roughening 0.5 + n_eff 10-20 pass canny, line-intensities ends at 0.56-0.59
-mm). Pass the tuned set through estimator_options until that conflict is
+mm). Pass the tuned set through EstimatorOptions.tuned until that conflict is
 resolved.
 """
 from __future__ import annotations

@@ -60,8 +60,10 @@ from __future__ import annotations
 import numpy as np
 
 from graphtrack.estimate import observation_models as om
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.estimate.options import PARTICLES
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
@@ -81,17 +83,17 @@ class ParticleFilter:
     pixel_weight: pixel models; marker_gamma (1/px), marker_gate (px; times
     gate_scale, the full-size pixels per detection pixel, which the tracking
     pipeline sets to 1 / its detection scale, as for the smoother).
-    ``observation`` is the model the caller intends to feed (informational:
-    each Observation carries its own ``model``, which is what is scored).
+    Each Observation carries its own ``model``, which is what is scored.
     """
 
     name = "pf"
     stochastic = True   #: the estimate depends on ``seed`` (resampling): studies repeat it
     uses_observations = True
+    supported_observations = om.OBSERVATION_MODELS
     extra_columns = STD_COLUMNS + ("ess",)
 
-    def __init__(self, ctx: TrackingContext, observation: str = "line-intensities",
-                 particles: int = 1000, seed: int = 0, markers: bool = True, *,
+    def __init__(self, ctx: TrackingContext,
+                 particles: int = PARTICLES, seed: int = 0, markers: bool = True, *,
                  motion_std_b: float = 2.5e-5, motion_std_w: float = 1e-4,
                  init_std_b: float = 4e-3, init_std_w: float = 3e-2,
                  resample_threshold: float = 0.5, roughening: float = 0.5,
@@ -104,15 +106,12 @@ class ParticleFilter:
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K):
-        if observation not in om.OBSERVATION_MODELS:
-            raise ValueError(f"unknown observation model {observation!r}")
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
         self.robot = ctx.robot
         self.K = np.asarray(ctx.camera.K, dtype=float)
         self.E0 = np.asarray(ctx.handeye, dtype=float).copy()
-        self.observation = observation
         self.N = int(particles)
         self.use_markers = bool(markers)
         self.rng = np.random.default_rng(seed)

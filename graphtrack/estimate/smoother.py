@@ -83,8 +83,11 @@ import time
 
 import numpy as np
 
-from graphtrack.estimate.base import STD_COLUMNS, Estimate, Frame, monotone_stamp
-from graphtrack.estimate.context import TrackingContext
+from graphtrack.detect.base import OBSERVATION_MODELS
+from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
+from graphtrack.estimate.options import LAG_S, SMOOTHER
+from graphtrack.io.frame import Frame
+from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
                                        key, left_from_right_cov, split_options)
 from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
@@ -93,8 +96,7 @@ from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
 class FixedLagSmootherEstimator:
     """Fixed-lag smoother over E_t (see the module docstring).
 
-    Options: observation (model name, used when an Observation carries none),
-    lag (s), smoother ("isam2" | "batch"), markers, prior_sigma_b/_w,
+    Options: lag (s), smoother ("isam2" | "batch"), markers, prior_sigma_b/_w,
     start_up (the LM initialisation of the first frame with detections),
     start_up_iterations, start_up_wait (frames of markers-only detections held
     back before starting without the shaft),
@@ -109,10 +111,12 @@ class FixedLagSmootherEstimator:
 
     name = "smoother"
     uses_observations = True
+    stochastic = False
+    supported_observations = OBSERVATION_MODELS
     extra_columns = STD_COLUMNS + ("smoother_ms",)
 
-    def __init__(self, ctx: TrackingContext, observation: str = "line-intensities", lag: float = 1.0,
-                 smoother: str = "isam2", markers: bool = True,
+    def __init__(self, ctx: TrackingContext, lag: float = LAG_S,
+                 smoother: str = SMOOTHER, markers: bool = True,
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
                  motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
                  iterations: int = 1, converge_tol: float = 1e-4,
@@ -124,7 +128,6 @@ class FixedLagSmootherEstimator:
 
         self.gtsam = gtsam
         self.ctx = ctx
-        self.model = observation
         self.lag = float(lag)
         self.kind = str(smoother).lower()
         if self.kind not in ("isam2", "batch"):
@@ -259,7 +262,7 @@ class FixedLagSmootherEstimator:
             graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
         self.prev_key = x
         shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self.fopts, self.model, self.E0, pose_key=x,
+                                             self.fopts, self.E0, pose_key=x,
                                              line_bias=self.settled)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:

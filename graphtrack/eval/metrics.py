@@ -154,8 +154,6 @@ def perturbation(E_true: np.ndarray, E_est: np.ndarray) -> np.ndarray:
     Exp is the (b, w) map of :mod:`graphtrack.geometry.se3` (translation b in m,
     axis-angle w in rad).
     """
-    from graphtrack.geometry.se3 import invert, matrix_to_bw
-
     return matrix_to_bw(np.asarray(E_true, float) @ invert(np.asarray(E_est, float)))
 
 
@@ -176,6 +174,9 @@ def nees(E_true: np.ndarray, E_est: np.ndarray, std: np.ndarray) -> np.ndarray:
 from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 #: chi-square(6) two-sided 95% bounds of a single NEES value.
 NEES_95 = (1.2373442457912, 14.4493753446378)
+from graphtrack.geometry.se3 import invert, matrix_to_bw
+from graphtrack.io.trajectory import read_trajectory
+from graphtrack.robot.features import base_features
 
 
 def truth_path(recording: str | Path) -> Path | None:
@@ -264,8 +265,6 @@ def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
     :func:`truth_metrics`, and the per-frame errors in ``out/truth_errors.csv``.
     robot + joints (frame -> joint vector as read) give the 3-D tip error.
     """
-    from graphtrack.io.trajectory import read_trajectory
-
     out = Path(out)
     est = read_trajectory(out / "trajectory.csv")
     doc = {"runtime_ms": runtime_metrics(est["ms"])}
@@ -275,8 +274,6 @@ def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
     truth = read_trajectory(tp)
     tips_base = None
     if robot is not None and joints and getattr(robot, "tool_tip", None) is not None:
-        from graphtrack.robot.features import base_features
-
         fr = sorted(joints)
         q = np.stack([np.asarray(joints[f], float) for f in fr])
         tips = base_features(robot, q).tip

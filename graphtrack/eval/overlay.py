@@ -5,7 +5,7 @@ Per frame (BGR colours):
   estimated E and the joint readings, projected WITH distortion;
 - yellow: the detected shaft edges (lines through the whole image) and, thicker,
   the associated shaft segments;
-- cyan dots: the observation's pixel sets (E_e / E_l) of the pixel models;
+- cyan dots (2 px radius): the observation's pixel sets (E_e / E_l) of the pixel models;
 - magenta circles: detected marker centroids;
 - red dot: the estimated tool tip; white cross: the labelled tip (labels.csv).
 
@@ -19,6 +19,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from graphtrack.io.video import StampedVideoWriter
+from graphtrack.robot.features import base_features
 
 GREEN = (0, 200, 0)
 YELLOW = (0, 255, 255)
@@ -80,8 +83,6 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
                  tip_uv: np.ndarray | None = None, label_uv: np.ndarray | None = None,
                  text: str | None = None) -> np.ndarray:
     """Return a copy of the raw BGR image with the overlay of one frame drawn on it."""
-    from graphtrack.robot.features import base_features
-
     cam = ctx.camera
     img = np.ascontiguousarray(image.copy() if image is not None
                                else np.zeros((cam.height, cam.width, 3), np.uint8))
@@ -111,7 +112,7 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
             if len(pix):
                 for u, v in _pts(cam.distort_pixels(pix)) // 16:
                     if 0 <= u < w and 0 <= v < h:
-                        img[v, u] = CYAN
+                        cv2.circle(img, (int(u), int(v)), 2, CYAN, -1)
     markers = None
     if detection is not None and len(getattr(detection, "markers", [])):
         markers = detection.markers
@@ -131,50 +132,40 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
 
 
 class OverlayWriter:
-    """Stream overlay frames into an mp4 (OpenCV's mp4v codec) at the camera's raw size.
+    """Stream overlay frames into an mp4 at the camera's raw size and the recording's frame rate
+    (:class:`graphtrack.io.video.StampedVideoWriter`; ``fps`` fixes it instead).
 
     ``write(frame, estimate, detection, observation, tip_uv_raw)`` per tracked
     frame; ``close()`` at the end (also a context manager). ``frames_written``
     counts the frames.
     """
 
-    def __init__(self, path: str | Path, ctx, labels: dict | None = None, fps: float = 15.0,
+    def __init__(self, path: str | Path, ctx, labels: dict | None = None, fps: float | None = None,
                  title: str | None = None):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self.ctx = ctx
         self.labels = labels or {}
-        self.fps = float(fps)
         self.title = title
-        self.size = (int(ctx.camera.width), int(ctx.camera.height))
-        self._writer = None
-        self.frames_written = 0
+        self._video = StampedVideoWriter(self.path, fps)
 
-    def _open(self, size):
-        fourcc = cv2.VideoWriter_fourcc(*"mp4v")
-        self._writer = cv2.VideoWriter(str(self.path), fourcc, self.fps, size)
-        if not self._writer.isOpened():
-            from graphtrack.errors import InputError
+    @property
+    def fps(self) -> float | None:
+        """The video's frame rate (None until the first frames have fixed it)."""
+        return self._video.fps
 
-            raise InputError(f"{self.path}: cannot open an mp4 video writer")
+    @property
+    def frames_written(self) -> int:
+        return self._video.frames_received
 
     def write(self, frame, estimate, detection=None, observation=None, tip_uv_raw=None) -> None:
         E = None if estimate is None else getattr(estimate, "E", estimate)
         label = self.labels.get(int(frame.index))
         text = f"frame {frame.index}" + (f"  {self.title}" if self.title else "")
         img = draw_overlay(frame.image, self.ctx, frame.q, E, detection, observation, tip_uv_raw, label, text)
-        if self._writer is None:
-            self.size = (img.shape[1], img.shape[0])
-            self._open(self.size)
-        if (img.shape[1], img.shape[0]) != self.size:
-            img = cv2.resize(img, self.size)
-        self._writer.write(img)
-        self.frames_written += 1
+        self._video.write(img, frame.stamp)
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
+        self._video.close()
 
     def __enter__(self):
         return self

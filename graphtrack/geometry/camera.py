@@ -140,6 +140,29 @@ class Calibration:
     R: np.ndarray | None = None
     T: np.ndarray | None = None
 
+    @property
+    def stereo(self) -> bool:
+        return self.right is not None
+
+    @property
+    def right_T_left(self) -> np.ndarray:
+        """4x4 right-from-left transform (metres): X_right = R X_left + T."""
+        if self.right is None:
+            raise ValueError("mono calibration: no right camera")
+        M = np.eye(4)
+        M[:3, :3], M[:3, 3] = self.R, np.ravel(self.T)
+        return M
+
+    def project_right(self, points_left: np.ndarray, raw: bool = True) -> np.ndarray:
+        """LEFT-camera-frame points (..., 3) m -> right image pixels (..., 2): raw
+        (distorted with D2) or undistorted (K2 only)."""
+        p = np.asarray(points_left, float) @ np.asarray(self.R).T + np.ravel(self.T)
+        return self.right.project_raw(p) if raw else self.right.project_undistorted(p)
+
+    def undistort_right(self, image: np.ndarray, scale: float = 1.0) -> np.ndarray:
+        """Raw right image -> undistorted right image (K2 kept; see Camera.undistort)."""
+        return self.right.undistort(image, scale)
+
 
 def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
     if key not in doc:
@@ -191,6 +214,8 @@ def load_calibration(path: str | Path) -> Calibration:
     if "K2" in doc:
         right = cam("K2", "D2")
         R = _matrix(doc, "R", 9, path).reshape(3, 3)
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
+            raise InputError(f"{path}: key 'R' is not a rotation matrix (right-from-left, row-major)")
         T = _matrix(doc, "T", 3, path) / 1000.0
         return Calibration(left, right, R, T)
     return Calibration(left)

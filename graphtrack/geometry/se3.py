@@ -18,8 +18,11 @@ _SMALL = 1e-8
 
 
 def skew(w: np.ndarray) -> np.ndarray:
-    """[w]x for w of shape (..., 3) -> (..., 3, 3)."""
+    """[w]x for w of shape (..., 3) -> (..., 3, 3): [w]x a = w x a, and the rows of
+    P @ [w]x are the rows of P crossed with w."""
     w = np.asarray(w, dtype=float)
+    if w.shape == (3,):  # one vector (the factors' callbacks): without the stacking
+        return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
     z = np.zeros(w.shape[:-1])
     return np.stack([
         np.stack([z, -w[..., 2], w[..., 1]], -1),

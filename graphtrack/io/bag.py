@@ -4,11 +4,19 @@ is :mod:`graphtrack.io.bag_write`.
 Reading (ROS 1 ``.bag`` files and ROS 2 bag folders, via ``rosbags``) is
 streamed in two passes so that a 10 GB bag never sits in memory:
 
-1. the small joint and jaw messages (``/dvrk/PSM1/state_joint_current``,
-   ``/dvrk/PSM1/state_jaw_current``) -> arrays of header stamps (ns) and positions;
+1. the small joint and jaw messages (``/dvrk/PSM1/state_joint_current`` and
+   ``/dvrk/PSM1/state_jaw_current``, or dVRK 2.x's ``/PSM1/measured_js`` and
+   ``/PSM1/jaw/measured_js``; :mod:`graphtrack.io.topics`) -> arrays of header
+   stamps (ns) and positions;
 2. the left images (``/stereo/left/image``, else ``/stereo/left/image/compressed``)
    in bag order, decoded one at a time; each takes the joint and jaw messages
    whose header stamps are nearest its own header stamp (ties: the earlier one).
+   Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
+   alongside, in bag order, with a small look-ahead; a left image takes the right
+   image whose header stamp is nearest its own if they differ by at most
+   ``RIGHT_SYNC_S`` (left and right stamps must increase in bag order). A left
+   image without one (missing, or not decodable) gets ``image_right`` None and
+   is counted in ``BagSource.right_skips``.
 
 A message whose header stamp is zero (never set by its publisher) uses its bag
 record time instead.
@@ -34,20 +42,17 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.bag1scan import Bag1Scan
+from graphtrack.io.frame import Frame
+from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
 
-IMAGE_TOPIC = "/stereo/left/image"
-COMPRESSED_TOPIC = "/stereo/left/image/compressed"
+IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
+RIGHT_IMAGE_TOPIC = "/stereo/right/image"
+RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
-
-
-def joint_topic(arm: str = "PSM1") -> str:
-    return f"/dvrk/{arm}/state_joint_current"
-
-
-def jaw_topic(arm: str = "PSM1") -> str:
-    return f"/dvrk/{arm}/state_jaw_current"
+RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
 
 
 # -- stamps and image decoding -----------------------------------------------------------
@@ -140,22 +145,25 @@ class JointTable:
 class BagSource:
     """One ROS 1 bag file or ROS 2 bag folder: validated at construction, streamed later.
 
-    Attributes: path, image_topic, n_images (frame count, from the index; from a
-    scan for truncated bags), has_jaw, truncated, warnings (lines for the user).
-    Raises InputError naming the bag (and topic) when it cannot be read or lacks
-    the left image topic or the joint topic.
+    Attributes: path, arm, image_topic, joint_topic, jaw_topic (chosen by
+    :func:`graphtrack.io.topics.resolve_topics` from ``selection``), n_images
+    (frame count, from the index; from a scan for truncated bags), has_jaw,
+    truncated, warnings (lines for the user). Raises InputError naming the bag
+    (and topic) when it cannot be read or lacks the left image topic or the
+    joint topic.
     """
 
-    def __init__(self, path: str | Path, arm: str = "PSM1"):
+    def __init__(self, path: str | Path, selection: TopicSelection = TopicSelection()):
         self.path = Path(path)
-        self.arm = arm
-        self.joint_topic, self.jaw_topic = joint_topic(arm), jaw_topic(arm)
+        self.selection = selection
         self.ros2 = self.path.is_dir()
         self.truncated = False
         self.warnings: list[str] = []
         self._table: tuple[JointTable, JointTable] | None = None
         self._stamps: np.ndarray | None = None
         self._scan_images: list[int] | None = None
+        self.right_topic: str | None = None
+        self.right_skips = {"missing": 0, "corrupt": 0}
         try:
             topics = self._indexed_topics()
             self.scan = False
@@ -191,52 +199,58 @@ class BagSource:
 
     def _scan_topics(self, err: Exception) -> dict[str, tuple[str, int]]:
         """Unindexed/truncated ROS 1 bag: one scan pass collects joints and image stamps."""
-        from graphtrack.io.bag1scan import Bag1Scan
         from rosbags.typesys import Stores, get_typestore
 
         store = get_typestore(Stores.ROS1_NOETIC)
         scan = Bag1Scan(self.path)
         counts: dict[str, list] = {}
-        joints: dict[str, tuple[list, list]] = {self.joint_topic: ([], []), self.jaw_topic: ([], [])}
-        img_stamps: dict[str, list[int]] = {IMAGE_TOPIC: [], COMPRESSED_TOPIC: []}
+        joints: dict[str, tuple[list, list]] = {}
+        img_stamps: dict[str, list[int]] = {}
         for conn, t, raw in scan.messages():
             counts.setdefault(conn.topic, [conn.msgtype, 0])[1] += 1
-            if conn.topic in joints and conn.msgtype == JOINT_TYPE:
-                self._add_joint(joints[conn.topic], store.deserialize_ros1, raw, conn.msgtype, t)
-            elif conn.topic in img_stamps:
+            if conn.msgtype == JOINT_TYPE:
+                self._add_joint(joints.setdefault(conn.topic, ([], [])), store.deserialize_ros1, raw,
+                                conn.msgtype, t)
+            elif conn.msgtype in (IMAGE_TYPE, COMPRESSED_TYPE):
                 ns = _raw_header_ns(raw, False) if len(raw) >= 12 else 0
-                img_stamps[conn.topic].append(ns or t)
+                img_stamps.setdefault(conn.topic, []).append(ns or t)
         self.truncated = True
         why = f"{_one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
         self.warnings.append(f"{self.path}: bag index unusable ({why}); read by scanning its "
                              "records, frames after the damage are missing")
-        self._table = (JointTable.build(*joints[self.joint_topic]), JointTable.build(*joints[self.jaw_topic]))
+        self._scan_joints = joints
         self._scan_stamps = img_stamps
         return {k: (v[0], v[1]) for k, v in counts.items()}
 
     def _choose_topics(self, topics: dict[str, tuple[str, int]]) -> None:
-        if IMAGE_TOPIC in topics:
-            self.image_topic, want = IMAGE_TOPIC, IMAGE_TYPE
-        elif COMPRESSED_TOPIC in topics:
-            self.image_topic, want = COMPRESSED_TOPIC, COMPRESSED_TYPE
-        elif self.scan:
+        if self.scan and not any(t[0] in (IMAGE_TYPE, COMPRESSED_TYPE) for t in topics.values()):
             raise InputError(f"{self.warnings[-1]}; no complete left image found")
-        else:
-            raise InputError(f"{self.path}: no left image topic ({IMAGE_TOPIC} or {COMPRESSED_TOPIC}); "
-                             f"topics: {', '.join(sorted(topics)) or 'none'}")
+        chosen = resolve_topics(topics, self.selection, str(self.path))
+        self.arm, self.image_topic = chosen.arm, chosen.image
+        self.joint_topic, self.jaw_topic = chosen.joint, chosen.jaw
         self.image_type, self.n_images = topics[self.image_topic]
-        if self.image_type != want:
-            raise InputError(f"{self.path}: topic {self.image_topic} has type {self.image_type}, expected {want}")
-        if self.joint_topic not in topics or topics[self.joint_topic][1] == 0:
-            raise InputError(f"{self.path}: no messages on joint topic {self.joint_topic}")
+        if self.image_type not in (IMAGE_TYPE, COMPRESSED_TYPE):
+            raise InputError(f"{self.path}: topic {self.image_topic} has type {self.image_type}, expected "
+                             f"{IMAGE_TYPE} or {COMPRESSED_TYPE}")
         for t in (self.joint_topic, self.jaw_topic):
             if t in topics and topics[t][0] != JOINT_TYPE:
                 raise InputError(f"{self.path}: topic {t} has type {topics[t][0]}, expected {JOINT_TYPE}")
         self.has_jaw = topics.get(self.jaw_topic, (None, 0))[1] > 0
+        for topic, typ in ((RIGHT_IMAGE_TOPIC, IMAGE_TYPE), (RIGHT_COMPRESSED_TOPIC, COMPRESSED_TYPE)):
+            if topic in topics and topics[topic][1] > 0:
+                if topics[topic][0] != typ:
+                    self.warnings.append(f"{self.path}: topic {topic} has type {topics[topic][0]}, expected "
+                                         f"{typ}; right images ignored")
+                else:
+                    self.right_topic, self.right_type = topic, typ
+                break
         if self.scan:
+            empty = ([], [])
+            self._table = (JointTable.build(*self._scan_joints.get(self.joint_topic, empty)),
+                           JointTable.build(*self._scan_joints.get(self.jaw_topic, empty)))
             # images stamped after the last surviving joint (jaw) reading lost the readings
             # that sync them: the recording ends before them
-            stamps = np.asarray(self._scan_stamps[self.image_topic], dtype=np.int64)
+            stamps = np.asarray(self._scan_stamps.get(self.image_topic, []), dtype=np.int64)
             joints, jaw = self._table
             last = min([t.stamps[-1] for t in ((joints, jaw) if self.has_jaw else (joints,)) if len(t.stamps)]
                        or [np.iinfo(np.int64).max])
@@ -275,19 +289,20 @@ class BagSource:
         return self._table
 
     # -- pass 2: images -----------------------------------------------------------------
-    def _image_messages(self) -> Iterator[tuple[int, int, bytes, object]]:
-        """(bag time ns, raw bytes, deserializer) per left image, in bag order."""
+    def _image_messages(self, topic: str | None = None) -> Iterator[tuple[int, bytes, object]]:
+        """(bag time ns, raw bytes, deserializer) per image of ``topic`` (default: the left
+        images), in bag order."""
+        topic = topic or self.image_topic
         if self.scan:
-            from graphtrack.io.bag1scan import Bag1Scan
             from rosbags.typesys import Stores, get_typestore
 
             store = get_typestore(Stores.ROS1_NOETIC)
             for c, t, raw in Bag1Scan(self.path).messages():
-                if c.topic == self.image_topic:
+                if c.topic == topic:
                     yield t, raw, store.deserialize_ros1
             return
         with self._reader() as r:
-            conns = [c for c in r.connections if c.topic == self.image_topic]
+            conns = [c for c in r.connections if c.topic == topic]
             yield from ((t, raw, r.deserialize) for _, t, raw in r.messages(connections=conns))
 
     def frames(self, start: int = 0):
@@ -296,11 +311,10 @@ class BagSource:
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
         """
-        from graphtrack.estimate.base import Frame
-
         joints, jaw = self.joint_tables()
         index = -1
         it = self._image_messages()
+        right = _RightMatcher(self, self._image_messages(self.right_topic)) if self.right_topic else None
         while True:
             try:
                 item = next(it)
@@ -329,7 +343,8 @@ class BagSource:
                 jaw_value = float(j[0]) if j.size else float("nan")
             else:
                 jaw_value = float("nan")
-            yield Frame(index, stamp_ns / 1e9, image, joints.nearest(stamp_ns).copy(), jaw_value)
+            yield Frame(index, stamp_ns / 1e9, image, joints.nearest(stamp_ns).copy(), jaw_value,
+                        image_right=None if right is None else right.image(stamp_ns))
 
     def stamps(self) -> np.ndarray:
         """Header stamps (s) of the left images, in frame order (one extra pass, no decoding)."""
@@ -339,6 +354,50 @@ class BagSource:
                 self._stamps = np.array([_raw_header_ns(raw, self.ros2) or t
                                          for _, t, raw in r.messages(connections=conns)], dtype=np.int64)
         return self._stamps / 1e9
+
+
+class _RightMatcher:
+    """Right images matched to left stamps in one forward pass (module doc, pass 2)."""
+
+    def __init__(self, source: BagSource, messages):
+        self.src, self.it, self.buf, self.done = source, messages, [], False
+        self.tol = int(RIGHT_SYNC_S * 1e9)
+
+    def _pull(self) -> None:
+        try:
+            t, raw, deser = next(self.it)
+        except StopIteration:
+            self.done = True
+            return
+        except Exception as e:  # noqa: BLE001 - damaged right data: the rest is left-only
+            self.done = True
+            self.src.warnings.append(f"{self.src.path}: {self.src.right_topic} unreadable ({_one_line(e)}); "
+                                     "later frames are left-only")
+            return
+        ns = _raw_header_ns(raw, self.src.ros2) if len(raw) >= 12 else 0
+        try:  # deserialized now: the reader behind ``deser`` closes when the messages end
+            msg = deser(raw, self.src.right_type)
+        except Exception:  # noqa: BLE001 - decoded below as corrupt
+            msg = None
+        self.buf.append((ns or t, msg))
+
+    def image(self, t_ns: int):
+        """The decoded right image for left stamp t_ns, or None (counted in right_skips)."""
+        while not self.done and (not self.buf or self.buf[-1][0] <= t_ns + self.tol):
+            self._pull()
+        while self.buf and self.buf[0][0] < t_ns - self.tol:
+            self.buf.pop(0)
+        best = min(range(len(self.buf)), key=lambda k: abs(self.buf[k][0] - t_ns), default=None)
+        if best is None or abs(self.buf[best][0] - t_ns) > self.tol:
+            self.src.right_skips["missing"] += 1
+            return None
+        _, msg = self.buf[best]
+        del self.buf[:best + 1]
+        try:
+            return decode_image(msg, self.src.right_type, str(self.src.path))
+        except Exception:  # noqa: BLE001 - a corrupt right image: left-only for this frame
+            self.src.right_skips["corrupt"] += 1
+            return None
 
 
 def _one_line(e: BaseException) -> str:

@@ -4,6 +4,7 @@
 
     frames/000000.png, frames/000001.png, ...   (or video.mp4): the raw left images
     joints.csv   header  frame,stamp,q1,...,qn,jaw   one row per frame
+    frames_right/000000.png, ...                  (stereo, optional): the raw right images
 
 ``frame`` is the 0-based frame number and must equal the row number; ``stamp``
 is in seconds; ``q1..qn`` are the DH joints (rad / m); ``jaw`` is the jaw
@@ -23,6 +24,7 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError
+from graphtrack.io.frame import Frame
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 
@@ -81,15 +83,12 @@ class FolderSource:
         frames_dir = self.path / "frames"
         self.video = None
         self._files: dict[int, Path] = {}
+        right_dir = self.path / "frames_right"
+        #: frame -> right image file (frames_right/, same names as frames/); None: mono
+        self.right_files = _image_files(right_dir) if right_dir.is_dir() else None
+        self.right_skips = {"missing": 0, "corrupt": 0}
         if frames_dir.is_dir():
-            for p in frames_dir.iterdir():
-                if p.name.startswith(".") or p.suffix.lower() not in IMAGE_EXTS:
-                    continue
-                if not p.stem.isdigit():
-                    raise InputError(f"{p}: image names in frames/ must be frame numbers (000000.png)")
-                if int(p.stem) in self._files:
-                    raise InputError(f"{p}: frame {int(p.stem)} has two images in {frames_dir}")
-                self._files[int(p.stem)] = p
+            self._files = _image_files(frames_dir)
             if self.n_images and not self._files:
                 raise InputError(f"{frames_dir}: no images")
             missing = self.n_images - sum(1 for k in self._files if k < self.n_images)
@@ -137,15 +136,41 @@ class FolderSource:
         finally:
             cap.release()
 
-    def frames(self, start: int = 0):
-        """Yield, per row of joints.csv from ``start`` on, a Frame (unchecked) or a FrameError."""
-        from graphtrack.estimate.base import Frame
+    def _right(self, k: int):
+        """frames_right/<k>: the image, or None (missing / not decodable: counted in right_skips)."""
+        if self.right_files is None:
+            return None
+        p = self.right_files.get(k)
+        img = cv2.imread(str(p), cv2.IMREAD_COLOR) if p is not None else None
+        if img is None:
+            self.right_skips["missing" if p is None else "corrupt"] += 1
+        return img
 
+    def frames(self, start: int = 0):
+        """Yield, per row of joints.csv from ``start`` on, a Frame (unchecked) or a FrameError.
+
+        Frame.image_right: frames_right/ holds the right image of the left image with the
+        same name (same row, same stamp); None when it is missing or does not decode."""
         for k, img, err in self._images(start):
             if err is not None:
                 yield FrameError(k, "corrupt_image", err)
             else:
-                yield Frame(k, float(self._stamps[k]), img, self._joints[k].copy(), float(self._jaw[k]))
+                yield Frame(k, float(self._stamps[k]), img, self._joints[k].copy(), float(self._jaw[k]),
+                            image_right=self._right(k))
+
+
+def _image_files(d: Path) -> dict[int, Path]:
+    """{frame: file} of the images in a frames folder; InputError on a bad or repeated name."""
+    out: dict[int, Path] = {}
+    for p in d.iterdir():
+        if p.name.startswith(".") or p.suffix.lower() not in IMAGE_EXTS:
+            continue
+        if not p.stem.isdigit():
+            raise InputError(f"{p}: image names in {d.name}/ must be frame numbers (000000.png)")
+        if int(p.stem) in out:
+            raise InputError(f"{p}: frame {int(p.stem)} has two images in {d}")
+        out[int(p.stem)] = p
+    return out
 
 
 def write_folder(out_dir: str | Path, frames: Iterable, video: bool = False, fps: float = 30.0,
@@ -153,14 +178,16 @@ def write_folder(out_dir: str | Path, frames: Iterable, video: bool = False, fps
     """Write the plain-folder form, streaming: frames/NNNNNN.<ext> (or video.mp4) + joints.csv.
 
     ``frames``: objects with stamp (s), image (H x W x 3 uint8 BGR), joints (n,)
-    and jaw (rad or NaN). joints.csv is flushed after every row. ``video=True``
-    writes an mp4v-coded video.mp4 (lossy) instead of image files.
+    and jaw (rad or NaN); an ``image_right`` that is not None goes to
+    frames_right/ under the same name. joints.csv is flushed after every row.
+    ``video=True`` writes an mp4v-coded video.mp4 (lossy) instead of the left image files.
     Returns the number of frames written.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if not video:
         (out / "frames").mkdir(exist_ok=True)
+    right_dir = None
     writer, n, width = None, 0, None
     with (out / "joints.csv").open("w", newline="") as f:
         try:
@@ -181,6 +208,13 @@ def write_folder(out_dir: str | Path, frames: Iterable, video: bool = False, fps
                     writer.write(img if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR))
                 elif not cv2.imwrite(str(out / "frames" / f"{n:06d}.{image_ext}"), img):
                     raise ValueError(f"frame {n}: cv2.imwrite failed")
+                right = getattr(fr, "image_right", None)
+                if right is not None:
+                    if right_dir is None:
+                        right_dir = out / "frames_right"
+                        right_dir.mkdir(exist_ok=True)
+                    if not cv2.imwrite(str(right_dir / f"{n:06d}.{image_ext}"), np.ascontiguousarray(right)):
+                        raise ValueError(f"frame {n}: cv2.imwrite (right) failed")
                 jaw = float(getattr(fr, "jaw", math.nan))
                 f.write(",".join([str(n), repr(float(fr.stamp))] + [repr(float(v)) for v in q]
                                  + [repr(jaw) if math.isfinite(jaw) else "nan"]) + "\n")

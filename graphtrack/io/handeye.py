@@ -54,15 +54,14 @@ def _vector3(doc: dict, key: str, path: Path) -> np.ndarray:
     return a
 
 
-def load_handeye(path: str | Path, arm: str = "PSM1") -> np.ndarray:
+def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
     """Read handeye.yaml -> 4x4 camera-from-base transform in metres.
 
     Parameters
     ----------
     path : the YAML file (translation in mm, rotation as axis-angle in rad).
-    arm : key prefix (``PSM1`` -> ``PSM1_tvec`` / ``PSM1_rvec``). When the file
-        holds exactly one ``*_tvec`` key, that arm is used whatever ``arm`` says
-        (recordings of PSM2 work without renaming keys).
+    arm : key prefix (``PSM2`` -> ``PSM2_tvec`` / ``PSM2_rvec``); the keys must exist.
+        None: the file's only arm (:func:`graphtrack.io.topics.handeye_arm`), else PSM1.
 
     Returns
     -------
@@ -71,12 +70,17 @@ def load_handeye(path: str | Path, arm: str = "PSM1") -> np.ndarray:
     Raises
     ------
     InputError naming the file and the key when a key is missing, is not three
-    numbers, or holds NaN/inf.
+    numbers, or holds NaN/inf, or when the file holds several arms and none was named.
     """
+    from graphtrack.io.topics import TopicSelection, handeye_arm
+
     path = Path(path)
     doc = _read_yaml(path)
-    tkeys = [k for k in doc if isinstance(k, str) and k.endswith("_tvec")]
-    prefix = tkeys[0][: -len("_tvec")] if len(tkeys) == 1 else arm
+    prefix = handeye_arm(doc, TopicSelection(arm=arm), str(path))
+    if f"{prefix}_tvec" not in doc:
+        found = sorted(k[: -len("_tvec")] for k in doc if isinstance(k, str) and k.endswith("_tvec"))
+        raise InputError(f"{path}: missing key '{prefix}_tvec' (the file has hand-eye keys for: "
+                         f"{', '.join(found) or 'no arm'}); choose the arm with --arm")
     t_mm = _vector3(doc, f"{prefix}_tvec", path)
     rvec = _vector3(doc, f"{prefix}_rvec", path)
     return bw_to_matrix(np.concatenate([t_mm / 1000.0, rvec]))

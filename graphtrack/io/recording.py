@@ -22,6 +22,12 @@ Per-frame problems are YIELDED (not raised) as
 - ``joint_count``: the joint reading does not hold the expected number of DH joints;
 - ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf.
 
+Stereo recordings (right images plus K2, D2, R, T): each Frame's ``image_right``
+holds the right image matched by stamp (folder form: the same file name in
+frames_right/); a missing, corrupt or wrongly sized right image gives None and
+is counted in ``rec.right_skips`` (and a line in ``rec.warnings``): that frame is
+left-only. ``rec.labels_right`` holds labels_right.csv.
+
 Truncated ROS 1 bags (index missing or damaged) are read up to the damage:
 all complete frames are yielded, ``rec.truncated`` is True and ``rec.warnings``
 holds a line for the user. See :mod:`graphtrack.io.bag`.
@@ -41,6 +47,8 @@ from graphtrack.io.bag import BagSource
 from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
 from graphtrack.io.labels import read_labels
+from graphtrack.io.topics import TopicSelection
+from graphtrack.robot.description import load_robot_json
 
 REQUIRED = ("robot.json", "camera_calibration.yaml", "handeye.yaml")
 
@@ -52,6 +60,7 @@ class Recording:
     path: the sequence folder; calibration: intrinsics (left, optional right);
     handeye: nominal camera-from-base 4x4 (METRES); robot: what the robot loader
     returned for robot.json; labels: {frame: (u, v) px} from labels.csv, or None;
+    labels_right: the same from labels_right.csv (right raw image), or None;
     n_joints: the DH joint count every reading must have (None: not checked);
     source: the BagSource or FolderSource behind the frames.
     """
@@ -64,14 +73,39 @@ class Recording:
     n_joints: int | None
     source: BagSource | FolderSource
     notes: list[str] = field(default_factory=list)
+    labels_right: dict[int, np.ndarray] | None = None
+    right_size_skips: int = 0
 
     def __len__(self) -> int:
         return len(self.source)
 
     @property
     def warnings(self) -> list[str]:
-        """Lines for the user: recording choices made, damage found, messages skipped."""
-        return self.notes + list(self.source.warnings)
+        """Lines for the user: recording choices made, damage found, messages skipped
+        (including, after iterating, the frames whose right image was unusable)."""
+        lines = self.notes + list(self.source.warnings)
+        sk = self.right_skips
+        if sum(sk.values()):
+            lines.append(f"{self.path}: {sum(sk.values())} frames without a usable right image "
+                         f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
+        return lines
+
+    @property
+    def stereo(self) -> bool:
+        """True when the recording has right images and the right camera's calibration."""
+        return self.has_right_images and self.calibration.right is not None
+
+    @property
+    def has_right_images(self) -> bool:
+        src = self.source
+        return (src.right_files is not None) if isinstance(src, FolderSource) else src.right_topic is not None
+
+    @property
+    def right_skips(self) -> dict[str, int]:
+        """Frames yielded so far with image_right None although the recording is stereo:
+        {"missing": no right image within the stamp tolerance / no file, "corrupt": does not
+        decode, "image_size": differs from ImageSize}."""
+        return {**self.source.right_skips, "image_size": self.right_size_skips}
 
     @property
     def kind(self) -> str:
@@ -128,6 +162,9 @@ class Recording:
             elif not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(f.jaw)):
                 yield FrameError(f.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {f.jaw}")
             else:
+                if f.image_right is not None and f.image_right.shape[:2] != (h, w):
+                    f.image_right = None
+                    self.right_size_skips += 1
                 yield f
 
 
@@ -141,12 +178,10 @@ def _dh_count(robot_json: Path) -> int | None:
 
 
 def _default_robot_loader(path: Path):
-    from graphtrack.robot.description import load_robot_json  # written in parallel: import lazily
-
     return load_robot_json(path)
 
 
-def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource, list[str]]:
+def find_source(path: Path, topics: TopicSelection = TopicSelection()) -> tuple[BagSource | FolderSource, list[str]]:
     """Pick the recording in a sequence folder: exactly one bag, else the folder form."""
     bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
     bags += sorted(p for p in path.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file())
@@ -157,7 +192,7 @@ def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource
     if len(bags) == 1:
         if folder_form:
             notes.append(f"{path}: both {bags[0].name} and frames/ or video.mp4; using the bag")
-        return BagSource(bags[0], arm), notes
+        return BagSource(bags[0], topics), notes
     if folder_form:
         if bags:
             notes.append(f"{path}: {len(bags)} bags; using the folder form (frames/ or video.mp4)")
@@ -170,7 +205,7 @@ def find_source(path: Path, arm: str = "PSM1") -> tuple[BagSource | FolderSource
 
 
 def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | None = None,
-                   expected_joints: int | None = None, arm: str = "PSM1") -> Recording:
+                   expected_joints: int | None = None, topics: TopicSelection = TopicSelection()) -> Recording:
     """Open and validate a sequence folder; no image is read.
 
     Parameters
@@ -180,7 +215,10 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         ``graphtrack.robot.description.load_robot_json``.
     expected_joints : DH joints per reading; default: ``robot.n_dh``, else the
         number of ``DH_params`` in robot.json.
-    arm : the arm whose topics and handeye keys are read (``PSM1``).
+    topics : the arm (its joint topics and handeye.yaml keys) and topic overrides; by
+        default the arm is the bag's only arm (the folder form: handeye.yaml's only arm),
+        the topics follow the dVRK 1.x or 2.x naming the bag uses
+        (:mod:`graphtrack.io.topics`).
 
     Raises InputError (one line naming the file / topic / field) for
     whole-recording problems; see the module docstring.
@@ -198,8 +236,9 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         n_dh = getattr(robot, "n_dh", None)
         n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
-    handeye = load_handeye(path / "handeye.yaml", arm)
     labels = read_labels(path / "labels.csv") if (path / "labels.csv").is_file() else None
-    source, notes = find_source(path, arm)
+    labels_r = read_labels(path / "labels_right.csv") if (path / "labels_right.csv").is_file() else None
+    source, notes = find_source(path, topics)
+    handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
     return Recording(path, calibration, handeye, robot, labels, n_joints, source,
-                     notes=notes)
+                     notes=notes, labels_right=labels_r)

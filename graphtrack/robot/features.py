@@ -18,6 +18,7 @@ import numpy as np
 from graphtrack.geometry.cylinder import project_cylinder
 from graphtrack.robot.description import RobotDescription
 from graphtrack.robot.kinematics import link_transforms
+from graphtrack.geometry.painted_marker import disc_pattern, on_surface, painted_disc
 
 
 @dataclass
@@ -127,8 +128,6 @@ def marker_discs(robot: RobotDescription, features: Features, n: int = 9):
     any other stays a point: its S samples are the point and its normals zero.
     None when no point feature is a disc.
     """
-    from graphtrack.geometry.painted_marker import disc_pattern, on_surface, painted_disc
-
     P = np.asarray(features.points, float).reshape(-1, 3)
     radii = np.array([p.radius for p in robot.point_features], float)
     if len(P) == 0 or len(features.shaft_r) == 0 or not np.any(radii > 0):

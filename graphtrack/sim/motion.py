@@ -139,12 +139,13 @@ def readings(rng, q: np.ndarray, fps: float, noise_free: bool = False) -> np.nda
     return q + bias + rng.normal(0, 1, q.shape) * white
 
 
-def handeye_error(rng) -> np.ndarray:
-    """Delta (4x4): translation 2-5 mm and rotation 1-3 deg in random directions."""
+def handeye_error(rng, b_range=(0.002, 0.005), w_range_deg=(1.0, 3.0)) -> np.ndarray:
+    """Delta (4x4): translation |b| ~ U(b_range) m and rotation |w| ~ U(w_range_deg) deg,
+    in uniformly random directions (defaults 2-5 mm, 1-3 deg)."""
     b = rng.normal(size=3)
     w = rng.normal(size=3)
-    b *= rng.uniform(0.002, 0.005) / np.linalg.norm(b)
-    w *= np.radians(rng.uniform(1.0, 3.0)) / np.linalg.norm(w)
+    b *= rng.uniform(*b_range) / np.linalg.norm(b)
+    w *= np.radians(rng.uniform(*w_range_deg)) / np.linalg.norm(w)
     return bw_to_matrix(np.concatenate([b, w]))
 
 
@@ -152,3 +153,47 @@ def lumped_error(robot, E_true: np.ndarray, q_true: np.ndarray, q_read: np.ndarr
     """True E_t (n, 4, 4) = camera_T_link4_true . base_T_link4(q~_t)^-1."""
     c4 = E_true @ link_transforms(robot, q_true)[:, 4]
     return c4 @ invert(link_transforms(robot, q_read)[:, 4])
+
+
+def excursion(robot, camera, cam_T_base, q: np.ndarray, start: int, ramp: int, hold: int):
+    """Pull the tool out of view and back: q plus a raised-cosine bump (``ramp`` frames
+    up, ``hold`` frames at full offset, ``ramp`` down) from ``start`` of the joint offset
+    d = (d1, 0, -r): first a pure retraction r (insertion joint 3, multiples of 5 mm up to
+    the joint limit), else the full retraction plus a yaw swing d1 = +-0.1, +-0.2, ... 0.6
+    rad (within the limits) -- the first d that puts the tip outside the image (or
+    behind the camera) in every held frame.
+
+    Returns (q', d (3,) [rad, rad, m]), or (q, None) when no such offset is found.
+    """
+    n = len(q)
+    prof = np.zeros(n)
+    k = np.arange(n) - start
+    up = (k >= 0) & (k < ramp)
+    prof[up] = 0.5 - 0.5 * np.cos(np.pi * (k[up] + 1) / ramp)
+    prof[(k >= ramp) & (k < ramp + hold)] = 1.0
+    down = (k >= ramp + hold) & (k < 2 * ramp + hold)
+    prof[down] = 0.5 + 0.5 * np.cos(np.pi * (k[down] - ramp - hold + 1) / ramp)
+    held = np.nonzero(prof == 1.0)[0]
+    if len(held) == 0:
+        return q, None
+    lim = robot.joint_limits
+    room = float(np.min(q[held, 2])) - lim[2, 0]
+    offsets = [(0.0, r) for r in np.arange(0.01, room + 1e-9, 0.005)]
+    offsets += [(s * a, room) for a in np.arange(0.1, 0.61, 0.1) for s in (1, -1)]
+    H, W = camera.height, camera.width
+    for d1, r in offsets:
+        qq = q[held].copy()
+        qq[:, 0] += d1
+        qq[:, 2] -= r
+        if np.any(qq[:, 0] < lim[0, 0]) or np.any(qq[:, 0] > lim[0, 1]):
+            continue
+        L = cam_T_base @ link_transforms(robot, qq)
+        tip = transform_points(L[:, robot.tool_tip.link], np.asarray(robot.tool_tip.position))
+        uv = camera.project_raw(np.where(tip[:, 2:] > 1e-3, tip, [0, 0, 1.0]))
+        inside = (tip[:, 2] > 1e-3) & (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+        if not inside.any():
+            out = q.copy()
+            out[:, 0] += d1 * prof
+            out[:, 2] -= r * prof
+            return out, np.array([d1, 0.0, r])
+    return q, None

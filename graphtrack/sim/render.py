@@ -305,7 +305,9 @@ class ToolRenderer:
         probes: raw pixels (u, v) whose hit depth (m, inf for none) and hit id
         (primitive index + 1, MARKER_ID, 0 for none) are returned: (depths, ids).
         Each primitive is intersected on its own candidate pixels only; a
-        z-buffer over the padded image keeps the nearest hit.
+        z-buffer over the padded image keeps the nearest hit. Afterwards
+        ``self.drawn`` = (v, u, id) of the pixels written (id 0: an
+        anti-aliased border pixel whose centre missed).
         """
         self.stamp += 1
         Wp = self.rays.Wp
@@ -324,6 +326,7 @@ class ToolRenderer:
             new = c[self.mark[c] != self.stamp]
             self.mark[new] = self.stamp
             union.append(new)
+        self.drawn = (np.zeros(0, int), np.zeros(0, int), np.zeros(0, np.int16))
         if not union:
             return background, (np.full(len(probes), np.inf), np.zeros(len(probes), int))
         allc = np.concatenate(union)
@@ -359,6 +362,7 @@ class ToolRenderer:
                 colours = np.concatenate([col[keep], ecol])
         v, u = np.divmod(out_idx, Wp)
         background[v - 1, u - 1] = np.clip(colours + 0.5, 0, 255).astype(np.uint8)
+        self.drawn = (v - 1, u - 1, self.wid[out_idx].copy())
         depth, pid = [], []
         for (pu, pv) in probes:
             iu, iv = int(round(pu)), int(round(pv))

@@ -7,7 +7,14 @@
   occludes part of the shaft at times, wide field of view (fx = 620 px at 960),
   stronger barrel distortion, tool 12-18 cm away.
 * ``randomize``: domain randomisation of the above (background kind and
-  colours, shaft colour, light, blur, noise, distortion, intrinsics).
+  colours, shaft and second-instrument colour and gloss, light, blur, noise,
+  distortion, intrinsics); the occluders (sim/occluders.py) and image
+  effects (sim/effects.py) are drawn by the simulation
+  (docs/randomized-recordings.md lists every range).
+
+Views: the left camera, and for stereo a right one (:meth:`Scene.add_view`)
+that ray-casts the same tool and sees the 2-D layers (background, flaps) as
+planes at a depth (sim/stereo.py).
 
 Tool geometry (each in its link's frame, metres; psm.py's numbers):
 shaft = cylinder on link 4's z from -0.45 to SHAFT_END, radius SHAFT_RADIUS,
@@ -26,7 +33,7 @@ import numpy as np
 
 from graphtrack.geometry.camera import Camera
 from graphtrack.sim import textures
-from graphtrack.sim.render import Material, Primitive, ToolRenderer
+from graphtrack.sim.render import MARKER_ID, Material, Primitive, ToolRenderer
 from graphtrack.robot.psm import JAW_LENGTH, SHAFT_END, SHAFT_RADIUS
 
 SCENES = ("structured", "tissue")
@@ -66,10 +73,16 @@ class Scene:
     flap_tex: np.ndarray | None = None
     events: list = field(default_factory=list)
     renderer: ToolRenderer | None = None
+    vig_strength: float = 0.0
+    event_depths: list = field(default_factory=list)
+    occlusions: list = field(default_factory=list)    # randomized: sim.occluders.Occlusion
+    effects: object = None                            # randomized: sim.effects.Effects
+    views: list = field(default_factory=list)
 
     def setup_renderer(self, robot, antialias: bool = True) -> None:
         self.renderer = ToolRenderer(self.camera, self.materials, self.light, self.falloff,
                                      self.distance, self.vig, antialias)
+        self.views = []
         mk = [p for p in robot.point_features if p.link == 4 and p.radius > 0]
         self.renderer.markers = np.array([[np.arctan2(p.position[1], p.position[0]), p.position[2], p.radius]
                                           for p in mk]).reshape(-1, 3)
@@ -79,7 +92,7 @@ class Scene:
 
         L_true: (N, n_links + 1, 4, 4) camera_T_link of the true poses.
         """
-        self.events = []
+        self.events, self.event_depths = [], []
         if self.flap_tex is None:
             return
         n = len(L_true)
@@ -94,10 +107,15 @@ class Scene:
             rad = rng.uniform(0.06, 0.11) * W
             shape = 1.0 + 0.25 * np.convolve(np.tile(rng.normal(0, 1, 24), 3), np.ones(3) / 3, "same")[24:48]
             self.events.append((t, min(n, t + dur), c, rad, shape))
+            self.event_depths.append(0.8 * float(p[2]))      # in front of the shaft (right view)
             t += dur + int(rng.integers(60, 200))
 
-    def flap_mask(self, i: int):
-        """(mask over the bbox, (v0, v1, u0, u1)) of the flap at frame i, or None."""
+    def flap_mask(self, i: int, legacy: bool = False):
+        """(uint8 mask over its bbox, (v0, v1, u0, u1)) of what hides the shaft at frame i
+        in the left view (the tissue scene's flap, a randomized fold or instrument), or None.
+        ``legacy``: the tissue scene's flap only."""
+        if not legacy and self.occlusions:
+            return self._occluder_mask(i)
         H, W = self.camera.height, self.camera.width
         for (s, e, c, rad, shape) in self.events:
             if s <= i < e:
@@ -114,34 +132,146 @@ class Scene:
                 return m, (v0, v1, u0, u1)
         return None
 
-    def compose(self, prims, i: int, rng, tip_uv=None):
-        """Frame i: background, tool, flap, noise, blur.
+    def _occluder_mask(self, i: int):
+        from graphtrack.sim.render import intersect
 
-        Returns (uint8 BGR image, (depth m, primitive) of the tool at tip_uv, tip under a flap).
-        """
-        img = self.background.copy()
-        probes = [] if tip_uv is None else [tip_uv]
-        img, (depth, pid) = self.renderer.render(prims, img, probes)
-        covered = False
-        fm = self.flap_mask(i)
-        if fm is not None:
-            m, (v0, v1, u0, u1) = fm
+        H, W = self.camera.height, self.camera.width
+        m = np.zeros((H, W), np.float32)
+        for o in self.occlusions:
+            if not o.start <= i < o.end:
+                continue
+            if o.kind == "tissue":
+                m = np.maximum(m, o.tissue_mask(i))
+                continue
+            X, Y = self.renderer.rays.x[1:-1, 1:-1], self.renderer.rays.y[1:-1, 1:-1]
+            for pr in o.primitives(i):
+                m = np.maximum(m, np.isfinite(intersect(pr, X, Y)[0]).astype(np.float32))
+        vs, us = np.nonzero(m > 0)
+        if len(vs) == 0:
+            return None
+        v0, v1, u0, u1 = vs.min(), vs.max() + 1, us.min(), us.max() + 1
+        return (np.round(m[v0:v1, u0:u1] * 255).astype(np.uint8), (v0, v1, u0, u1))
+
+    def add_view(self, camera: Camera, to_view: np.ndarray, rng, antialias: bool = True) -> "View":
+        """A second camera (``to_view``: its 4x4 from the left camera, metres) of the same scene."""
+        from graphtrack.sim import stereo
+
+        vig = textures.vignette(camera.height, camera.width, self.vig_strength) if self.vig is not None else None
+        r = ToolRenderer(camera, self.materials, self.light, self.falloff, self.distance, vig, antialias)
+        r.markers = self.renderer.markers
+        R, T = to_view[:3, :3], to_view[:3, 3]
+        left = self.camera
+        view = View(camera, r, None, rng, to_view, lambda d: stereo.plane_map(left, camera, R, T, d))
+        view.background = view.layer(self.background, self.distance * 1.3)
+        self.views.append(view)
+        return view
+
+    def left_view(self, rng) -> "View":
+        if not self.views:
+            self.views.append(View(self.camera, self.renderer, self.background, rng, None, None))
+        return self.views[0]
+
+    def _legacy_flap(self, view: "View", img, i: int):
+        """The tissue scene's flap at frame i over img; returns its mask over the view (or None)."""
+        fm = self.flap_mask(i, legacy=True)
+        if fm is None:
+            return None
+        m, (v0, v1, u0, u1) = fm
+        if view.to_view is None:
             a = (m.astype(np.float32) / 255.0)[..., None]
             roi = img[v0:v1, u0:u1]
             img[v0:v1, u0:u1] = (a * self.flap_tex[v0:v1, u0:u1] + (1 - a) * roi + 0.5).astype(np.uint8)
-            if tip_uv is not None:
-                iu, iv = int(round(tip_uv[0])) - u0, int(round(tip_uv[1])) - v0
-                covered = 0 <= iv < m.shape[0] and 0 <= iu < m.shape[1] and m[iv, iu] > 64
+            full = np.zeros(img.shape[:2], np.uint8)
+            full[v0:v1, u0:u1] = m
+            return full
+        full = np.zeros(img.shape[:2], np.uint8)
+        full[v0:v1, u0:u1] = m
+        k = [e[0] for e in self.events].index(next(e[0] for e in self.events if e[0] <= i < e[1]))
+        depth = self.event_depths[k]
+        mv = view.layer(full, depth)
+        _blend(img, mv.astype(np.float32) / 255.0, view.layer(self.flap_tex, depth))
+        return mv
+
+    def compose(self, view: "View", prims, i: int, tip_uv=None, velocity=None):
+        """Frame i in ``view``: background, tool (+ instrument), flaps and folds, effects, noise.
+
+        prims: the tool in the view's frame; tip_uv: raw pixel to probe; velocity:
+        the tool tip's image motion (px / frame) for motion blur.
+        Returns (uint8 BGR image, (depth m, primitive) of the tool at tip_uv, tip under a flap).
+        """
+        img = view.background.copy()
+        probes = [] if tip_uv is None else [tip_uv]
+        n_tool = len(prims)
+        prims = list(prims) + [p for o in self.occlusions if o.kind == "instrument" and o.start <= i < o.end
+                               for p in o.primitives(i, view.to_view)]
+        img, (depth, pid) = view.renderer.render(prims, img, probes)
+        masks = []
+        if self.effects is not None and self.effects.exposure > 0:
+            v, u, ids = view.renderer.drawn
+            tool = np.zeros(img.shape[:2], np.uint8)
+            keep = (ids <= n_tool) | (ids == MARKER_ID)
+            tool[v[keep], u[keep]] = 1
+            img = self.effects.motion_blur(img, tool, velocity)
+        m = self._legacy_flap(view, img, i)
+        if m is not None:
+            masks.append((m, 64))
+        for o in self.occlusions:
+            if o.kind == "tissue" and o.start <= i < o.end:
+                a = view.layer(o.tissue_mask(i), o.depth)
+                _blend(img, a, view.layer(o.texture, o.depth))
+                masks.append((a, 0.25))
+        if self.effects is not None:
+            img = self.effects.apply(img, i)
+        covered = False
+        if tip_uv is not None:
+            iu, iv = int(round(tip_uv[0])), int(round(tip_uv[1]))
+            H, W = img.shape[:2]
+            covered = 0 <= iv < H and 0 <= iu < W and any(mk[iv, iu] > th for mk, th in masks)
         if self.blur > 0:
             img = cv2.GaussianBlur(img, (0, 0), self.blur)
         if self.noise is not None:
             pos, neg = self.noise
             H, W = img.shape[:2]
-            dv, du = rng.integers(0, pos.shape[0] - H + 1), rng.integers(0, pos.shape[1] - W + 1)
+            dv, du = view.rng.integers(0, pos.shape[0] - H + 1), view.rng.integers(0, pos.shape[1] - W + 1)
             cv2.add(img, pos[dv:dv + H, du:du + W], dst=img)
             cv2.subtract(img, neg[dv:dv + H, du:du + W], dst=img)
         hit = (depth[0], prims[pid[0] - 1] if 0 < pid[0] <= len(prims) else None) if len(depth) else (np.inf, None)
         return img, hit, covered
+
+
+@dataclass
+class View:
+    """One camera of the scene: its renderer, its background, its noise stream; to_view:
+    4x4 view_T_left (None for the left camera); plane_map(depth): remap tables that show
+    a left-view 2-D layer at that depth in this view (see sim/stereo.py)."""
+
+    camera: Camera
+    renderer: ToolRenderer
+    background: np.ndarray | None
+    rng: object
+    to_view: np.ndarray | None
+    plane_map: object
+    _maps: dict = field(default_factory=dict)
+
+    def layer(self, img: np.ndarray, depth: float) -> np.ndarray:
+        if self.to_view is None:
+            return img
+        from graphtrack.sim import stereo
+
+        key = round(float(depth), 4)
+        if key not in self._maps:
+            self._maps[key] = self.plane_map(key)
+        return stereo.warp(img, self._maps[key])
+
+
+def _blend(img: np.ndarray, alpha: np.ndarray, tex: np.ndarray) -> None:
+    """img = alpha tex + (1 - alpha) img over alpha's bounding box (in place)."""
+    vs, us = np.nonzero(alpha > 1e-3)
+    if len(vs) == 0:
+        return
+    v0, v1, u0, u1 = vs.min(), vs.max() + 1, us.min(), us.max() + 1
+    a = alpha[v0:v1, u0:u1, None]
+    img[v0:v1, u0:u1] = (a * tex[v0:v1, u0:u1] + (1 - a) * img[v0:v1, u0:u1] + 0.5).astype(np.uint8)
 
 
 def _materials(shaft_bgr=(38.0, 38.0, 42.0)) -> dict:
@@ -172,9 +302,12 @@ def make_scene(kind: str, size: tuple[int, int], rng, randomize: bool = False,
                 rng.uniform(-1e-3, 1e-3), 0.0]
         g = rng.uniform(10, 110)
         mats["shaft"] = Material(tuple(g + rng.uniform(-8, 8, 3)), rng.uniform(0.2, 0.5),
-                                 rng.uniform(0.6, 1.0), rng.uniform(30, 200), rng.uniform(8, 60))
+                                 rng.uniform(0.6, 1.0), rng.uniform(30, 255), rng.uniform(8, 150))
+        gi = rng.uniform(25, 90)
+        mats["instrument"] = Material(tuple(gi + rng.uniform(-6, 6, 3)), rng.uniform(0.2, 0.5),
+                                      rng.uniform(0.6, 1.0), rng.uniform(30, 255), rng.uniform(8, 150))
         light, falloff = rng.uniform(0.55, 1.3), rng.choice([0.0, 1.0, 2.0])
-        vig_s, sigma, blur = rng.uniform(0, 0.6), rng.uniform(0, 8), rng.choice([0.0, rng.uniform(0.3, 1.5)])
+        vig_s, sigma, blur = rng.uniform(0, 0.7), rng.uniform(0, 8), rng.choice([0.0, rng.uniform(0.3, 1.5)])
     if noise_free:
         sigma, blur = 0.0, 0.0
     K = np.array([[fx, 0, cx], [0, fx, cy], [0, 0, 1.0]])
@@ -183,8 +316,6 @@ def make_scene(kind: str, size: tuple[int, int], rng, randomize: bool = False,
     flap = None
     if randomize:
         bg = textures.random_background(rng, H, W, vig)
-        if rng.uniform() < 0.5 and not noise_free:
-            flap = textures.random_background(rng, H, W)
     elif kind == "structured":
         bg = textures.white_bench(rng, H, W)
     else:
@@ -193,4 +324,4 @@ def make_scene(kind: str, size: tuple[int, int], rng, randomize: bool = False,
             flap = textures.tissue(rng, H, W, base_bgr=(110.0, 105.0, 205.0), light=light)
     noise = textures.noise_bank(rng, H, W, sigma) if sigma > 0 else None
     return Scene(kind, cam, float(distance), mats, float(light), float(falloff), vig, bg, noise,
-                 float(blur), flap)
+                 float(blur), flap, vig_strength=float(vig_s))

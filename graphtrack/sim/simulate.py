@@ -37,7 +37,10 @@ from graphtrack.geometry.se3 import matrix_to_quaternion, transform_points
 from graphtrack.robot.description import save_robot_json
 from graphtrack.robot.kinematics import link_transforms
 from graphtrack.robot.psm import psm_large_needle_driver
-from graphtrack.sim import motion
+from graphtrack.sim import motion, occluders
+from graphtrack.sim import stereo as sim_stereo
+from graphtrack.sim.effects import draw_effects
+from graphtrack.sim.scenario import draw_events, intervals, write_scenario
 from graphtrack.sim.scene import SCENES, make_scene, tool_primitives
 
 FPS = 30.0
@@ -45,17 +48,21 @@ T0 = 1_600_000_000.0
 MIN_SIZE = 64
 TRUTH_COLUMNS = "frame,stamp,tx,ty,tz,qx,qy,qz,qw,tip_u,tip_v,ms"
 LABEL_NOISE_PX = 1.2
+#: randomized hand-eye error: |b| ~ U(0, 10) mm, |w| ~ U(0, 5) deg
+HANDEYE_RANDOM = ((0.0, 0.010), (0.0, 5.0))
 
 
 @dataclass
 class SimFrame:
-    """What the writers take: stamp (s), image (BGR uint8), joints (DH readings), jaw."""
+    """What the writers take: stamp (s), image (BGR uint8), joints (DH readings), jaw,
+    image_right (BGR uint8, stereo only)."""
 
     index: int
     stamp: float
     image: np.ndarray
     joints: np.ndarray
     jaw: float
+    image_right: np.ndarray | None = None
 
 
 def check_args(scene: str, frames: int, size) -> tuple[int, int]:
@@ -75,52 +82,107 @@ def check_args(scene: str, frames: int, size) -> tuple[int, int]:
 
 
 class Simulation:
-    """A planned recording: scene, true and read joints, truth; frames rendered on demand."""
+    """A planned recording: scene, true and read joints, truth; frames rendered on demand.
+
+    stereo: also a right camera (sim/stereo.py; right-only random streams, so the
+    left images, joints, truth and labels are the same with and without it).
+    randomize: the scene's look is randomized (sim/scene.py) and so are the
+    hand-eye error (|b| 0-10 mm, |w| 0-5 deg), an out-of-view excursion,
+    occlusions and image effects (``self.scenario``: what was drawn).
+    """
 
     def __init__(self, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
-                 randomize: bool = False, noise_free: bool = False, antialias: bool = True):
+                 randomize: bool = False, noise_free: bool = False, antialias: bool = True,
+                 stereo: bool = False):
         H, W = check_args(scene, frames, size)
         self.robot = psm_large_needle_driver()
         ss = np.random.SeedSequence([int(seed), SCENES.index(scene), int(randomize), int(noise_free)])
-        r_scene, r_pose, r_motion, r_read, r_frame, r_label = (np.random.default_rng(s) for s in ss.spawn(6))
-        self.rng_frame, self.rng_label = r_frame, r_label
+        (r_scene, r_pose, r_motion, r_read, r_frame, r_label,
+         r_right, r_label_right, r_events) = (np.random.default_rng(s) for s in ss.spawn(9))
+        self.rng_frame, self.rng_label, self.rng_label_right = r_frame, r_label, r_label_right
+        self.randomize, self.n = bool(randomize), int(frames)
         self.scene = make_scene(scene, (H, W), r_scene, randomize, noise_free)
         self.scene.setup_renderer(self.robot, antialias)
         cam = self.scene.camera
         self.E_he = motion.look_at_workspace(
             self.robot, motion.Q0, self.scene.distance, r_pose.uniform(58, 72), r_pose.uniform(-np.pi, np.pi),
             r_pose.choice([-1, 1]) * r_pose.uniform(25, 70) - 90, r_pose.uniform(0.08, 0.16) * W, cam.fx)
-        self.delta = np.eye(4) if noise_free else motion.handeye_error(r_pose)
+        if noise_free:
+            self.delta = np.eye(4)
+        else:
+            self.delta = (motion.handeye_error(r_pose, HANDEYE_RANDOM[0], HANDEYE_RANDOM[1]) if randomize
+                          else motion.handeye_error(r_pose))
         self.E_nominal = self.delta @ self.E_he
         self.q_true = motion.true_trajectory(self.robot, cam, self.E_he, motion.Q0, frames, FPS, r_motion)
+        events = draw_events(r_events, self.n) if randomize and not noise_free else []
+        self.excursion = self._excursion(events)
         self.q_read = motion.readings(r_read, self.q_true, FPS, noise_free)
         self.E_t = motion.lumped_error(self.robot, self.E_he, self.q_true, self.q_read)
         self.L_true = self.E_he @ link_transforms(self.robot, self.q_true)     # (N, links, 4, 4)
         tip = transform_points(self.L_true[:, self.robot.tool_tip.link], np.asarray(self.robot.tool_tip.position))
-        front = tip[:, 2] > 1e-6
         self.tip_cam = tip
-        self.tip_uv = np.where(front[:, None], cam.project_raw(np.where(front[:, None], tip, 1.0)), np.nan)
+        self.tip_uv = _project_tip(cam, tip)
         self.scene.plan_occlusions(r_scene, self.L_true)
-        self.n = int(frames)
+        if events:
+            wins = [(s, s + n, x["target"]) for k, s, n, x in events if k == "occlusion"]
+            self.scene.occlusions = occluders.plan(r_events, wins, self.L_true, cam)
+        if randomize and not noise_free:
+            self.scene.effects = draw_effects(r_events, self.n, H, W)
+        self.view = self.scene.left_view(r_frame)
+        self.right = None
+        if stereo:
+            rnd = r_right if randomize else None
+            base = r_right.uniform(0.004, 0.006) if randomize else sim_stereo.BASELINE
+            verg = np.radians(r_right.uniform(0.0, 3.0)) if randomize else sim_stereo.VERGENCE
+            self.R, self.T = sim_stereo.rig(base, verg)
+            cam_r = sim_stereo.right_camera(cam, rnd)
+            self.right = self.scene.add_view(cam_r, sim_stereo.to_right(self.R, self.T), r_right, antialias)
+            self.tip_cam_right = tip @ self.R.T + self.T
+            self.tip_uv_right = _project_tip(cam_r, self.tip_cam_right)
+
+    def _excursion(self, events) -> dict | None:
+        for kind, s, n, x in events:
+            if kind == "excursion":
+                q, delta = motion.excursion(self.robot, self.camera, self.E_he, self.q_true, s, x["ramp"], x["hold"])
+                self.q_true = q
+                return {"start": s, "end": s + n, "ramp": x["ramp"], "hold": x["hold"], "applied": delta is not None,
+                        "retraction_m": None if delta is None else float(delta[2]),
+                        "yaw_swing_rad": None if delta is None else float(delta[0])}
+        return None
 
     @property
     def camera(self):
         return self.scene.camera
 
-    def render(self, i: int):
-        """Frame i -> (image, tip visible?)."""
-        prims = tool_primitives(self.L_true[i])
-        uv = self.tip_uv[i]
+    @property
+    def calibration(self) -> Calibration:
+        """The recording's camera_calibration.yaml content (right camera when stereo)."""
+        if self.right is None:
+            return Calibration(self.camera)
+        return Calibration(self.camera, self.right.camera, self.R, self.T)
+
+    def render(self, i: int, right: bool = False):
+        """Frame i of the left (or right) camera -> (image, tool tip visible?)."""
+        view = self.right if right else self.view
+        to = view.to_view
+        L = self.L_true[i] if to is None else to @ self.L_true[i]
+        uvs, tip = (self.tip_uv, self.tip_cam) if to is None else (self.tip_uv_right, self.tip_cam_right)
+        uv = uvs[i]
         probe = uv if np.all(np.isfinite(uv)) else None
-        img, (depth, prim), covered = self.scene.compose(prims, i, self.rng_frame, probe)
+        vel = None
+        if self.scene.effects is not None:
+            j = i - 1 if i > 0 else min(i + 1, self.n - 1)
+            vel = (uv - uvs[j]) * (1 if i > 0 else -1)
+        img, (depth, prim), covered = self.scene.compose(view, tool_primitives(L), i, probe, vel)
         H, W = img.shape[:2]
         inside = probe is not None and 0 <= uv[0] <= W - 1 and 0 <= uv[1] <= H - 1
-        behind = depth < self.tip_cam[i, 2] - 0.003 and (prim is None or prim.material != "jaw")
+        behind = depth < tip[i, 2] - 0.003 and (prim is None or prim.material != "jaw")
         visible = inside and not covered and not behind
         return img, bool(visible)
 
-    def frames(self, truth_file=None, labels: dict | None = None):
-        """Yield SimFrame 0..n-1, writing truth rows and collecting labels on the way."""
+    def frames(self, truth_file=None, labels: dict | None = None, labels_right: dict | None = None):
+        """Yield SimFrame 0..n-1 (image_right set for stereo), writing truth rows and
+        collecting labels on the way."""
         for i in range(self.n):
             img, visible = self.render(i)
             stamp = T0 + i / FPS
@@ -131,12 +193,54 @@ class Simulation:
                 truth_file.write(f"{i}," + ",".join(repr(float(v)) for v in vals) + ",\n")
             if labels is not None and visible:
                 labels[i] = self.tip_uv[i] + self.rng_label.normal(0, LABEL_NOISE_PX, 2)
-            yield SimFrame(i, stamp, img, self.q_read[i, :6].copy(), float(self.q_read[i, 6]))
+            img_r = None
+            if self.right is not None:
+                img_r, vis_r = self.render(i, right=True)
+                if labels_right is not None and vis_r:
+                    labels_right[i] = self.tip_uv_right[i] + self.rng_label_right.normal(0, LABEL_NOISE_PX, 2)
+            yield SimFrame(i, stamp, img, self.q_read[i, :6].copy(), float(self.q_read[i, 6]), img_r)
+
+    def scenario(self) -> dict:
+        """What a randomized recording drew (scenario.json; see sim/scenario.py)."""
+        from graphtrack.geometry.se3 import matrix_to_bw
+
+        bw = matrix_to_bw(self.delta)
+        cam = self.camera
+        H, W = cam.height, cam.width
+        uv = self.tip_uv
+        tip_in = np.all(np.isfinite(uv), 1) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) \
+            & (uv[:, 1] <= H - 1)
+        shaft_in = np.array([len(occluders.shaft_samples(self.L_true[i, 4], cam)[0]) > 0 for i in range(self.n)])
+        fx = self.scene.effects
+        return {
+            "frames": self.n, "fps": FPS,
+            "handeye_error": {"translation_mm": float(np.linalg.norm(bw[:3]) * 1000),
+                              "rotation_deg": float(np.degrees(np.linalg.norm(bw[3:]))),
+                              "bw": bw, "delta": self.delta},
+            "occlusions": [{"kind": o.kind, "start": o.start, "end": o.end, "target_coverage": o.target,
+                            "coverage": o.coverage, "mean_coverage": float(np.nanmean(o.coverage)),
+                            "max_coverage": float(np.nanmax(o.coverage))} for o in self.scene.occlusions],
+            "out_of_view": {"excursion": self.excursion, "tip_out": intervals(~tip_in),
+                            "shaft_out": intervals(~shaft_in)},
+            "effects": {**(fx.info if fx is not None else {}),
+                        "sensor_noise": {"on": self.scene.noise is not None},
+                        "optical_blur_sigma_px": self.scene.blur,
+                        "vignetting_strength": self.scene.vig_strength},
+            "look": {"fx_px": cam.fx, "distortion": cam.dist, "light": self.scene.light,
+                     "falloff": self.scene.falloff, "shaft_material": vars(self.scene.materials["shaft"])},
+        }
+
+
+def _project_tip(cam, tip: np.ndarray) -> np.ndarray:
+    """Raw pixels of camera-frame points; NaN behind the camera."""
+    front = tip[:, 2] > 1e-6
+    return np.where(front[:, None], cam.project_raw(np.where(front[:, None], tip, 1.0)), np.nan)
 
 
 def _prepare_out(out: Path) -> None:
     writable_dir(out, "the recording there")
-    for old in list(out.glob("*.bag")) + [out / "frames", out / "joints.csv", out / "labels.csv"]:
+    for old in list(out.glob("*.bag")) + [out / n for n in ("frames", "frames_right", "joints.csv", "labels.csv",
+                                                             "labels_right.csv", "scenario.json")]:
         if old.is_dir():
             shutil.rmtree(old)
         elif old.exists():
@@ -145,13 +249,16 @@ def _prepare_out(out: Path) -> None:
 
 def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
              compressed: bool = False, form: str = "bag", randomize: bool = False, progress: bool = True,
-             noise_free: bool = False) -> Path:
+             noise_free: bool = False, stereo: bool = False) -> Path:
     """Write a simulated recording into ``out_dir`` (sequence format + truth.csv) and return it.
 
     scene: "structured" | "tissue"; frames > 0; size = (H, W) px; form: "bag"
     (one ROS 1 bag ``recording.bag``; ``compressed`` -> PNG CompressedImage) or
     "folder" (frames/ + joints.csv). ``noise_free``: no hand-eye error, no
-    joint noise, no sensor noise/blur/flap (for geometry tests).
+    joint noise, no sensor noise/blur/flap (for geometry tests). ``stereo``: also
+    the right images (``/stereo/right/image[/compressed]`` or frames_right/), K2, D2,
+    R, T in camera_calibration.yaml and labels_right.csv. ``randomize``: also
+    scenario.json (what was drawn; sim/scenario.py).
     Frames are rendered and written one at a time.
     """
     from graphtrack.io.handeye import save_handeye
@@ -159,16 +266,17 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
 
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
-    sim = Simulation(scene, frames, seed, size, randomize, noise_free)
+    sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
     out = Path(out_dir)
     _prepare_out(out)
     save_robot_json(out / "robot.json", sim.robot)
-    save_calibration(out / "camera_calibration.yaml", Calibration(sim.camera))
+    save_calibration(out / "camera_calibration.yaml", sim.calibration)
     save_handeye(out / "handeye.yaml", sim.E_nominal)
     labels: dict = {}
+    labels_right: dict | None = {} if stereo else None
     with (out / "truth.csv").open("w", newline="") as tf:
         tf.write(TRUTH_COLUMNS + "\n")
-        it = sim.frames(tf, labels)
+        it = sim.frames(tf, labels, labels_right)
         if progress:
             from tqdm import tqdm
 
@@ -182,6 +290,10 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
 
             write_folder(out, it)
     write_labels(out / "labels.csv", labels)
+    if labels_right is not None:
+        write_labels(out / "labels_right.csv", labels_right)
+    if randomize:
+        write_scenario(out / "scenario.json", sim.scenario())
     return out
 
 

@@ -47,6 +47,8 @@ from graphtrack.geometry.camera import Camera
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
 from graphtrack.geometry.painted_marker import disc_centroid
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, marker_discs
 from graphtrack.robot.psm import psm_large_needle_driver
 
@@ -103,8 +105,6 @@ class Scene(NamedTuple):
     @property
     def ctx(self):
         """The estimators' TrackingContext (robot, camera, E0)."""
-        from graphtrack.estimate.context import TrackingContext
-
         return TrackingContext(self.robot, self.camera, self.E0)
 
     def true_E(self, handeye_error=HANDEYE_ERROR) -> np.ndarray:
@@ -161,8 +161,6 @@ class SynthFrame:
 
     def frame(self):
         """The estimators' Frame (index, stamp, no image, DH joints, jaw)."""
-        from graphtrack.estimate.base import Frame
-
         return Frame(self.index, self.stamp, None, self.q[:6], self.q[6])
 
 
@@ -218,8 +216,6 @@ class Sequence(NamedTuple):
 
     @property
     def ctx(self):
-        from graphtrack.estimate.context import TrackingContext
-
         return TrackingContext(self.robot, self.camera, self.E0)
 
 

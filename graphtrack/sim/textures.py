@@ -85,11 +85,13 @@ def tissue(rng, H: int, W: int, base_bgr=(95.0, 92.0, 190.0), light: float = 0.7
 
 
 def random_background(rng, H: int, W: int, vig: np.ndarray | None = None) -> np.ndarray:
-    """Domain-randomised background: tissue of a random hue, flat colour, or noise blobs."""
-    kind = rng.integers(0, 3)
-    if kind == 0:
+    """Domain-randomised background: tissue of a random hue (bright, or dark and low in
+    contrast: light 0.2-0.45), flat colour, or noise blobs; each kind with probability 1/4."""
+    kind = rng.integers(0, 4)
+    if kind in (0, 3):
         base = rng.uniform([40, 40, 120], [160, 160, 240])
-        return tissue(rng, H, W, tuple(base), rng.uniform(0.5, 1.1), vig)
+        light = rng.uniform(0.5, 1.1) if kind == 0 else rng.uniform(0.2, 0.45)
+        return tissue(rng, H, W, tuple(base), light, vig)
     if kind == 1:
         c = rng.uniform(60, 250, 3)
         n = fractal_noise(rng, H, W, base=max(2, W // 4), octaves=3)

@@ -4,7 +4,8 @@ Each pixel p = (x, y) of a shaft edge's pixel set has the residual
 
     R(p | theta, rho) = cos(theta) x + sin(theta) y - rho          (px)
 
-against the NEARER of the two projected limb lines of a particle, R ~ N(0, sigma^2),
+(:func:`graphtrack.geometry.lines.pixel_residual`, here fused into one float32
+product over all particles, edges and pixels: :func:`pixel_loglik`) against the NEARER of the two projected limb lines of a particle, R ~ N(0, sigma^2),
 floored at c sigma (the max-mixture form of a Gaussian + uniform outlier mixture):
 
     log P = lambda * sum_p w_p max(-R_p^2 / (2 sigma^2), -c^2 / 2)

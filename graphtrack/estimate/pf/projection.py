@@ -8,7 +8,8 @@ The frame's features are first mapped by the prior E_0 (once per frame, the
 
 i.e. one (3N, 3) x (3, K) product for all particles and features. The shaft
 (point p0 on the axis, unit direction d, radius r) then projects to its two
-limb lines with Chaumette's closed form (:mod:`graphtrack.geometry.cylinder`),
+limb lines with Chaumette's closed form
+(:func:`graphtrack.geometry.cylinder.project_cylinder_batch`),
 the markers with the pinhole K (undistorted pixels).
 
 Layout. Everything here is component-major ("structure of arrays"): a
@@ -22,11 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graphtrack.geometry.cylinder import line_angles, project_cylinder_batch
 from graphtrack.robot.kinematics import link_transforms
-
-#: the shaft counts as seen end-on (no limb lines) within this angle of the viewing ray
-END_ON_DEG = 2.0
-_COS_END_ON = np.cos(np.radians(END_ON_DEG))
 
 
 def rotations(w: np.ndarray) -> np.ndarray:
@@ -50,48 +48,6 @@ def rotations(w: np.ndarray) -> np.ndarray:
     R[0, 2], R[2, 0] = bxz + ay, bxz - ay
     R[1, 2], R[2, 1] = byz - ax, byz + ax
     return R
-
-
-def limb_lines(p0: np.ndarray, d: np.ndarray, r: float, K: np.ndarray):
-    """Limb lines of a cylinder for (3, N) axis points p0 and UNIT directions d (camera frame, m).
-
-    Same closed form, line order, canonical lines (theta in [0, pi)) and
-    ``valid`` flag (camera outside the cylinder, p0 in front, not end-on within
-    END_ON_DEG, not at infinity) as :func:`graphtrack.geometry.cylinder.project_cylinder`,
-    but each line is returned as its unit normal (cos theta, sin theta) and
-    rho, so that the pixel models need no trigonometry (theta = atan2(sin, cos)
-    when wanted, :func:`line_angles`).
-    Returns rho, cos, sin (2, N) (px, -, -) and valid (N,).
-    """
-    px, py, pz = p0
-    dx, dy, dz = d
-    pd = px * dx + py * dy + pz * dz
-    mx, my, mz = px - pd * dx, py - pd * dy, pz - pd * dz
-    mn = np.sqrt(mx * mx + my * my + mz * mz)
-    inside = mn <= r * (1.0 + 1e-9)
-    inv = 1.0 / np.where(inside, 1.0, mn)
-    ux, uy, uz = mx * inv, my * inv, mz * inv
-    alpha = np.where(inside, 0.0, r * inv)
-    beta = np.sqrt(np.clip(1.0 - alpha * alpha, 0.0, None))
-    # limb normals n = alpha u +- beta v, v = d x u; row 0 takes +, row 1 takes -
-    pm = np.array([[1.0], [-1.0]])
-    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    A = (alpha * ux + pm * (beta * (dy * uz - dz * uy))) * (1.0 / fx)  # (2, N)
-    B = (alpha * uy + pm * (beta * (dz * ux - dx * uz))) * (1.0 / fy)
-    C = alpha * uz + pm * (beta * (dx * uy - dy * ux)) - A * cx - B * cy
-    s2 = A * A + B * B
-    at_inf = s2 <= 1e-24 * C * C  # |(A, B)| ~ 0: the line at infinity
-    # canonical: sin theta >= 0 (theta in [0, pi)), i.e. flip (A, B, C) when B < 0 or B = 0 > A
-    k = np.where((B < 0) | ((B == 0) & (A < 0)), -1.0, 1.0) / np.sqrt(np.where(s2 > 0, s2, 1.0))
-    pn = np.sqrt(px * px + py * py + pz * pz)
-    end_on = np.abs(pd) >= _COS_END_ON * np.maximum(pn, 1e-300)
-    valid = ~(inside | at_inf[0] | at_inf[1] | end_on | (pz <= 0))
-    return -C * k, A * k, B * k, valid
-
-
-def line_angles(cos: np.ndarray, sin: np.ndarray) -> np.ndarray:
-    """theta (rad, in [0, pi)) of canonical unit normals (cos, sin) from :func:`limb_lines`."""
-    return np.arctan2(sin, cos)
 
 
 @dataclass
@@ -170,7 +126,7 @@ def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray) -> Hypotheses
     W = np.matmul(V.T, R)
     b = np.ascontiguousarray(x[:, :3].T)  # (3, N)
     p0 = W[:, 0] + b
-    rho, cos, sin, valid = limb_lines(p0, W[:, 1], r, K)
+    rho, cos, sin, valid = project_cylinder_batch(p0, W[:, 1], r, K)
     M = len(on_shaft)
     pts = W[:, 2:2 + M] + b[:, None, :]  # (3, M, N)
     z = pts[2]

@@ -1,6 +1,6 @@
 """The study's report: table.md / table.csv / runtime.csv / results.csv and the
 accumulated-error plots, read back from the cell folders of
-:mod:`graphtrack.eval.study` (a cell is complete when it holds done.json).
+:mod:`graphtrack.study.plan` (a cell is complete when it holds done.json).
 """
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import csv
 import json
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from graphtrack.errors import InputError
-
-if TYPE_CHECKING:
-    from graphtrack.eval.study import Cell
+from graphtrack.eval.metrics import accumulated_error, tip_error_series
+from graphtrack.io.labels import read_labels
+from graphtrack.io.trajectory import read_trajectory
+from graphtrack.study.cells import Cell
 
 
 def is_done(cell: Cell) -> bool:
@@ -164,14 +164,10 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
     """accumulated_error_<recording>.png: one curve per completed cell with labels (the
     study's own seed of a repeated one)."""
-    import matplotlib
+    import matplotlib  # heavy, and only the plots need it
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from graphtrack.eval.metrics import accumulated_error, tip_error_series
-    from graphtrack.io.labels import read_labels
-    from graphtrack.io.trajectory import read_trajectory
 
     written = []
     for rec in dict.fromkeys(c.recording for c in cells):

@@ -1,11 +1,11 @@
-"""The study's report tables (graphtrack.eval.study_report) from a hand-made results set."""
+"""The study's report tables (graphtrack.study.report) from a hand-made results set."""
 import csv
 import json
 
 import pytest
 
-from graphtrack.eval.study import Cell
-from graphtrack.eval.study_report import cell_status, format_table, is_done, write_tables
+from graphtrack.study.cells import Cell
+from graphtrack.study.report import cell_status, format_table, is_done, write_tables
 
 
 def make_cell(root, rec, est, obs, seed=0, repeat=0, result=None, error=None):

@@ -28,103 +28,34 @@ particle filter is one draw: on the benchmark's structured recording, four
 filter seeds of line-intensities-polar gave 4.5, 5.9, 9.5 and 6.8 px.
 
 Cells run in local processes (``workers``) or as Ray tasks (``ray_address``),
-by :mod:`graphtrack.eval.study_exec`.
+by :mod:`graphtrack.study.execute`; the tables by :mod:`graphtrack.study.report`.
 """
 from __future__ import annotations
 
-import importlib
 import json
 import os
-from dataclasses import dataclass, field
 from pathlib import Path
 
+from graphtrack.detect.observe import SEEDED_MODELS
 from graphtrack.errors import InputError
-from graphtrack.eval.study_exec import run_local, run_ray
-# the report is read back from the cell folders; format_table / cell_status are re-exported
-from graphtrack.eval.study_report import cell_status, format_table, is_done, plot_accumulated, write_tables  # noqa: F401
-
-STUDY_VERSION = 1
-#: Options that change a cell's result: a study folder holds one value of each.
-CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
-                "alpha", "beta", "markers")
-
-
-@dataclass
-class StudyOptions:
-    estimators: list[str] = field(default_factory=lambda: ["kinematics", "pf", "smoother", "batch"])
-    observations: list[str] = field(default_factory=lambda: ["line-intensities"])
-    detector: str = "learned"
-    weights: str | None = None
-    max_frames: int | None = None
-    particles: int = 1000
-    lag: float = 1.0
-    smoother: str = "isam2"
-    seed: int = 0
-    alpha: float = 10.0
-    beta: float = 0.9
-    markers: bool = True
-    repeats: int = 1        #: runs (seeds seed .. seed+repeats-1) of each seed-dependent cell
-
-    def cell_options(self) -> dict:
-        return {k: getattr(self, k) for k in CELL_OPTIONS}
-
-
-@dataclass
-class Cell:
-    recording: str          # display name (folder name under runs/)
-    path: str               # the recording's path
-    estimator: str
-    observation: str | None  # None for kinematics
-    out: str                # the cell's output folder
-    options: dict           # StudyOptions.cell_options()
-    video: bool = False     # also write overlay.mp4
-    repeat: int = 0         # 0: the study's seed; r: a repeat with seed + r (its options' seed)
-
-    @property
-    def key(self) -> str:
-        k = self.estimator if self.observation is None else f"{self.estimator}-{self.observation}"
-        return k if self.repeat == 0 else f"{k}.seed{self.options['seed']}"
-
-    @property
-    def row(self) -> tuple[str, str]:
-        return ("—" if self.observation is None else self.observation, self.estimator)
-
+from graphtrack.estimate import estimator_class
+from graphtrack.study.cells import CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions
+from graphtrack.study.execute import run_local, run_ray
+from graphtrack.study.report import is_done, plot_accumulated, write_tables
 
 # -- which combinations exist -----------------------------------------------------------
-def supported_observations(estimator: str) -> tuple[str, ...] | None:
-    """Observation models ``estimator`` accepts (None: all of them).
-
-    Read from the estimator class's ``observation_models`` (or
-    ``supported_observations``) attribute, without building it.
-    """
-    from graphtrack.estimate import ESTIMATORS
-
-    module, cls = ESTIMATORS[estimator]
-    try:
-        klass = getattr(importlib.import_module(module), cls)
-    except (ImportError, AttributeError):
-        return None
-    for attr in ("observation_models", "supported_observations", "OBSERVATION_MODELS"):
-        v = getattr(klass, attr, None)
-        if v is not None and not callable(v):
-            return tuple(v)
-    return None
+def supported_observations(estimator: str) -> tuple[str, ...]:
+    """Observation models ``estimator`` scores (its class's ``supported_observations``)."""
+    return tuple(estimator_class(estimator).supported_observations)
 
 
 def seed_dependent(estimator: str, observation: str | None) -> bool:
     """Whether a cell's result depends on the seed: a ``stochastic`` estimator
-    class (the particle filter) or an observation model that draws RANSAC samples."""
-    from graphtrack.detect.observe import SEEDED_MODELS
-    from graphtrack.estimate import ESTIMATORS
-
-    if estimator == "kinematics":
-        return False
-    module, cls = ESTIMATORS[estimator]
-    try:
-        stochastic = bool(getattr(getattr(importlib.import_module(module), cls), "stochastic", False))
-    except (ImportError, AttributeError):
-        stochastic = False
-    return stochastic or observation in SEEDED_MODELS
+    (the particle filter) or an observation model that draws RANSAC samples."""
+    cls = estimator_class(estimator)
+    if not cls.uses_observations:
+        return bool(cls.stochastic)
+    return bool(cls.stochastic) or observation in SEEDED_MODELS
 
 
 def recording_names(paths: list[str]) -> list[str]:
@@ -152,25 +83,21 @@ def plan(paths: list[str], options: StudyOptions, out: Path,
     cells, notes = [], []
     opts = options.cell_options()
     names = list(names) if names is not None else recording_names(paths)
+    # estimators that use no observations (the kinematics baseline): one cell per recording
+    blind = [e for e in options.estimators if not estimator_class(e).uses_observations]
     for est in options.estimators:
-        if est == "kinematics":
+        if not estimator_class(est).uses_observations:
             continue
-        sup = supported_observations(est)
-        if sup is not None:
-            bad = [o for o in options.observations if o not in sup]
-            if bad:
-                notes.append(f"{est} does not support {', '.join(bad)}: skipped")
+        bad = [o for o in options.observations if o not in supported_observations(est)]
+        if bad:
+            notes.append(f"{est} does not support {', '.join(bad)}: skipped")
     for name, path in zip(names, paths):
         root = out / "runs" / name
-        if "kinematics" in options.estimators:
-            cells.append(Cell(name, str(Path(path).resolve()), "kinematics", None,
-                              str(root / "kinematics"), opts))
+        for est in blind:
+            cells.append(Cell(name, str(Path(path).resolve()), est, None, str(root / est), opts))
         for obs in options.observations:
             for est in options.estimators:
-                if est == "kinematics":
-                    continue
-                sup = supported_observations(est)
-                if sup is not None and obs not in sup:
+                if est in blind or obs not in supported_observations(est):
                     continue
                 n = options.repeats if seed_dependent(est, obs) else 1
                 for r in range(n):

@@ -15,7 +15,7 @@ cheaper, and the same 135x240 network input after resizing).
 Per rendered frame: the raw image is undistorted with the recording's camera
 (same K), resized to ``scale`` of the FULL 540x960 geometry (135x240,
 cv2.INTER_AREA), and labelled with the visible shaft edge segments
-(:func:`graphtrack.detect.training.labels.shaft_edge_segments` with truth E_t
+(:func:`graphtrack.training.labels.shaft_edge_segments` with truth E_t
 and the joint READINGS q~_t), minus the parts under a tissue flap (sampled
 every reduced px, mapped to raw pixels, dropped where the flap mask > 1/4).
 Returns images (N, h, w, 3) uint8 BGR and segments (N, MAX_SEG, 4) float32 in
@@ -29,7 +29,9 @@ import time
 import cv2
 import numpy as np
 
-from graphtrack.detect.training.labels import shaft_edge_segments, to_reduced
+from graphtrack.sim.scene import SCENES
+from graphtrack.sim.simulate import Simulation
+from graphtrack.training.labels import shaft_edge_segments, to_reduced
 
 TRAIN_SEED_BASE = 100_000
 SPAN = 150            #: frames of each recording's trajectory (5 s)
@@ -65,9 +67,6 @@ def _visible_runs(seg: np.ndarray, camera, flap, step: float) -> list[np.ndarray
 def generate(frames: int, seed: int = 0, per_recording: int = 24, render_size=(270, 480),
              full_size=(540, 960), scale: float = 0.25, plain_every: int = 4, progress=None):
     """(images (N, h, w, 3) uint8, segments (N, MAX_SEG, 4) float32, info dict); see the module doc."""
-    from graphtrack.sim.scene import SCENES
-    from graphtrack.sim.simulate import Simulation
-
     frames = int(frames)
     per = max(1, min(int(per_recording), frames))
     n_rec = int(math.ceil(frames / per))

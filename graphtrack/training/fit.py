@@ -3,7 +3,7 @@
 Loss: binary cross-entropy with logits on both maps, positives up-weighted
 (``pos_weight`` 5 on the line map, 10 on the junction map: edges cover ~1 %
 of the pixels), junction loss x 0.5. Targets from
-:func:`graphtrack.detect.training.labels.target_maps`.
+:func:`graphtrack.training.labels.target_maps`.
 
 Augmentation (per sample, on the fly, seeded): horizontal and vertical flips
 (image and segments), brightness gain 0.2-1.5 (half the samples below 0.6:
@@ -74,7 +74,7 @@ def train(images: np.ndarray, segments: np.ndarray, epochs: int = 30, seed: int 
     import torch
 
     from graphtrack.detect.learned_net import LineNet
-    from graphtrack.detect.training.labels import target_maps
+    from graphtrack.training.labels import target_maps
 
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)

@@ -1,4 +1,4 @@
-"""What every estimator is built from: the robot, the left camera and the hand-eye prior."""
+"""What a recording gives every estimator: the robot, the left camera and the hand-eye prior."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -1,7 +1,7 @@
-"""Running a study's cells (:mod:`graphtrack.eval.study`): one cell into its folder.
+"""Running a study's cells (:mod:`graphtrack.study.plan`): one cell into its folder.
 
 A cell is one ``graphtrack track`` run with the cell's options
-(:func:`track_options` builds them exactly as the command does). Its folder
+(:meth:`Cell.track_options`). Its folder
 gets ``done.json`` LAST (the mark of a complete cell) or ``error.json`` (a
 failed cell: reported, retried next time; the study goes on). Executors: local
 processes (:func:`run_local`, ``workers``) or Ray tasks (:func:`run_ray`),
@@ -10,42 +10,28 @@ the files and the driver writes them (:func:`run_cell_portable`).
 """
 from __future__ import annotations
 
-import argparse
 import json
+import multiprocessing as mp
 import os
 import shutil
 import sys
 import tempfile
 import time
 import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+from tqdm import tqdm
 
 from graphtrack.errors import InputError
-
-if TYPE_CHECKING:
-    from graphtrack.eval.study import Cell
-
-
-def track_options(cell: Cell):
-    """The TrackOptions of a cell, exactly as ``graphtrack track`` would build them."""
-    from graphtrack.commands.track import options_from_args
-
-    o = cell.options
-    args = argparse.Namespace(estimator=cell.estimator, observation=cell.observation or "line-intensities",
-                              detector=o["detector"], weights=o["weights"], no_markers=not o["markers"],
-                              particles=o["particles"], lag=o["lag"], smoother=o["smoother"], seed=o["seed"],
-                              alpha=o["alpha"], beta=o["beta"])
-    return options_from_args(args)
+from graphtrack.study.cells import Cell
+from graphtrack.track import track
 
 
 def _track_into(cell: Cell, out: Path) -> dict:
-    from graphtrack.track import track
-
-    return track(cell.path, out, track_options(cell), video=cell.video, progress=False,
+    return track(cell.path, out, cell.track_options(), video=cell.video, progress=False,
                  max_frames=cell.options["max_frames"], quiet=True)
 
 
@@ -131,8 +117,6 @@ def _store_portable(cell: Cell, answer) -> dict:
 
 # -- executors ---------------------------------------------------------------------------
 def _bar(total: int, quiet: bool):
-    from tqdm import tqdm
-
     return tqdm(total=total, desc="study", unit="cell", file=sys.stderr, disable=quiet)
 
 
@@ -145,9 +129,6 @@ def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[
                 answers.append(run_cell(c))
                 bar.update(1)
             return answers
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
         with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
             futures = {ex.submit(run_cell, c): c for c in cells}
             for fut in as_completed(futures):
@@ -164,7 +145,7 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
     """Run the cells as Ray tasks. address: 'local' (start a local instance),
     'auto' (the running cluster) or a cluster address (ray://host:10001, host:6379)."""
     try:
-        import ray
+        import ray  # optional and heavy: only a study run on Ray imports it
     except ImportError:
         raise InputError("--ray needs Ray: pip install 'graphtrack[ray]'") from None
     started = False

@@ -1,0 +1,36 @@
+"""Arguments shared by the commands that read a recording: the arm, topics and threads."""
+from __future__ import annotations
+
+from graphtrack.errors import InputError
+from graphtrack.io.topics import ARMS, TopicSelection
+from graphtrack.threads import DEFAULT_THREADS
+
+
+def add_source_arguments(p) -> None:
+    """--arm and the topic overrides (bag recordings; the folder form reads only --arm)."""
+    g = p.add_argument_group("recording")
+    g.add_argument("--arm", choices=ARMS, default=None,
+                   help="the tracked arm: its joint topics and handeye.yaml keys (default: %(default)s, the only "
+                        "arm the recording has)")
+    g.add_argument("--image-topic", metavar="TOPIC", default=None,
+                   help="left image topic (default: %(default)s, /stereo/left/image, else .../compressed)")
+    g.add_argument("--joint-topic", metavar="TOPIC", default=None,
+                   help="joint topic (default: %(default)s, /dvrk/ARM/state_joint_current or dVRK 2.x /ARM/measured_js)")
+    g.add_argument("--jaw-topic", metavar="TOPIC", default=None,
+                   help="jaw topic (default: %(default)s, /dvrk/ARM/state_jaw_current or dVRK 2.x /ARM/jaw/measured_js)")
+
+
+def source_from_args(args) -> TopicSelection:
+    return TopicSelection(arm=args.arm, image=args.image_topic, joint=args.joint_topic, jaw=args.jaw_topic)
+
+
+def add_threads_argument(p) -> None:
+    p.add_argument("--threads", type=int, default=DEFAULT_THREADS, metavar="N",
+                   help="threads for BLAS, OpenCV and torch in this process (default: %(default)s; more "
+                        "helps only on an otherwise idle machine)")
+
+
+def threads_from_args(args) -> int:
+    if not 1 <= args.threads <= 256:
+        raise InputError(f"--threads must be between 1 and 256, got {args.threads}")
+    return int(args.threads)

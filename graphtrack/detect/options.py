@@ -1,0 +1,47 @@
+"""How frames become observations, as the CLI, the studies and the benchmarks choose it:
+:class:`DetectionOptions`, each default written once (alpha / beta in :mod:`.pixel_sets`)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from graphtrack.detect.base import OBSERVATION_MODELS
+from graphtrack.detect.pixel_sets import ALPHA, BETA
+from graphtrack.errors import InputError
+
+DETECTOR = "learned"                    #: the shipped CPU line network
+OBSERVATION = "line-intensities"        #: the method's default observation model
+MAX_DETECT_WIDTH = 960                  #: px; detection runs at most this wide by default
+
+
+@dataclass(frozen=True)
+class DetectionOptions:
+    """detector: a registered detector name (:data:`graphtrack.detect.DETECTORS`);
+    weights: its weights file (None: the shipped ones); alpha (px) / beta: the
+    pixel sets' radius and heatmap threshold; markers: use painted-marker
+    detections; scale: detect on the undistorted image scaled by this factor
+    (None: at most MAX_DETECT_WIDTH px wide)."""
+
+    detector: str = DETECTOR
+    weights: str | None = None
+    alpha: float = ALPHA
+    beta: float = BETA
+    markers: bool = True
+    scale: float | None = None
+
+    def check(self) -> DetectionOptions:
+        """Raise InputError naming the CLI option of a value out of range; return self."""
+        if self.scale is not None and not 0.05 <= self.scale <= 1.0:
+            raise InputError("--detect-scale must be in [0.05, 1]")
+        if not self.alpha > 0:
+            raise InputError("--alpha must be positive")
+        return self
+
+    def detector_keywords(self) -> dict:
+        """The keywords :func:`graphtrack.detect.make_detector` builds the detector with."""
+        return {"weights": self.weights} if self.weights else {}
+
+
+def check_observation(model: str) -> str:
+    if model not in OBSERVATION_MODELS:
+        raise InputError(f"--observation: unknown model {model!r} (choose from {', '.join(OBSERVATION_MODELS)})")
+    return model

@@ -1,0 +1,52 @@
+"""The estimator options that the CLI, the studies and the benchmarks choose, each
+default written once here (the estimators' own tuned constants stay with them).
+
+:class:`EstimatorOptions` holds them for any estimator; :meth:`EstimatorOptions.keywords`
+hands each estimator the ones it takes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from graphtrack.errors import InputError
+
+PARTICLES = 1000      #: particle filter: particles
+LAG_S = 1.0           #: fixed-lag smoother: lag (s)
+SMOOTHER = "isam2"    #: fixed-lag smoother: gtsam IncrementalFixedLagSmoother ("isam2") or Batch ("batch")
+SMOOTHER_KINDS = ("isam2", "batch")
+
+
+@dataclass(frozen=True)
+class EstimatorOptions:
+    """particles and seed (its resampling draws): pf; lag (s) and smoother: the
+    fixed-lag smoother; edge_bias: the edge-bias state of the smoother and the batch
+    (off for edges known to be unbiased); tuned: further constructor keywords of
+    the chosen estimator (e.g. a tuned set of its constants), passed as they are."""
+
+    particles: int = PARTICLES
+    seed: int = 0
+    lag: float = LAG_S
+    smoother: str = SMOOTHER
+    edge_bias: bool = True
+    tuned: dict = field(default_factory=dict)
+
+    def check(self) -> EstimatorOptions:
+        """Raise InputError naming the CLI option of a value out of range; return self."""
+        if self.particles <= 0:
+            raise InputError("--particles must be positive")
+        if self.lag <= 0:
+            raise InputError("--lag must be positive")
+        if self.smoother not in SMOOTHER_KINDS:
+            raise InputError(f"--smoother: choose from {', '.join(SMOOTHER_KINDS)}, not {self.smoother!r}")
+        return self
+
+    def keywords(self, estimator: str) -> dict:
+        """The constructor keywords of ``estimator`` that these options set."""
+        kw = {}
+        if estimator == "pf":
+            kw = {"particles": self.particles, "seed": self.seed}
+        elif estimator == "smoother":
+            kw = {"lag": self.lag, "smoother": self.smoother}
+        if estimator in ("smoother", "batch") and not self.edge_bias:
+            kw["edge_bias"] = False
+        return {**kw, **self.tuned}

@@ -1,0 +1,116 @@
+"""Which bag topics and hand-eye keys belong to the tracked arm (format doc, "The bag").
+
+A dVRK recording names the tracked arm twice: in its joint topics and in the
+keys of handeye.yaml (``PSM1_tvec``). Two topic namings are in use:
+
+=========  ==================================  ==========================
+dVRK       joints (DH joints, ``position``)      jaw (one value)
+=========  ==================================  ==========================
+1.x        ``/dvrk/PSM1/state_joint_current``  ``/dvrk/PSM1/state_jaw_current``
+2.x        ``/PSM1/measured_js``               ``/PSM1/jaw/measured_js``
+=========  ==================================  ==========================
+
+:class:`TopicSelection` says what the user asked for (all optional);
+:func:`resolve_topics` turns it and the bag's topic list into the topics read.
+With no arm given, the arm is the one whose joint topic the bag carries; a bag
+with several arms' joint topics needs ``--arm``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from graphtrack.errors import InputError
+
+ARMS = ("PSM1", "PSM2", "PSM3")
+DEFAULT_ARM = "PSM1"
+IMAGE_TOPICS = ("/stereo/left/image", "/stereo/left/image/compressed")
+
+
+@dataclass(frozen=True)
+class TopicSelection:
+    """The user's choice of arm and topics; None everywhere means "detect it".
+
+    arm: PSM1 | PSM2 | PSM3 (the joint topics and the handeye.yaml keys);
+    image / joint / jaw: explicit topic names, overriding the conventions.
+    """
+
+    arm: str | None = None
+    image: str | None = None
+    joint: str | None = None
+    jaw: str | None = None
+
+    def __post_init__(self):
+        if self.arm is not None and self.arm not in ARMS:
+            raise InputError(f"--arm: unknown arm {self.arm!r} (choose from {', '.join(ARMS)})")
+        for name in ("image", "joint", "jaw"):
+            t = getattr(self, name)
+            if t is not None and not (isinstance(t, str) and t.startswith("/") and len(t) > 1):
+                raise InputError(f"--{name}-topic: a topic name starts with '/', got {t!r}")
+
+
+@dataclass(frozen=True)
+class ResolvedTopics:
+    """The topics read from one bag: arm, left image, joints, jaw (may be absent from the bag)."""
+
+    arm: str
+    image: str
+    joint: str
+    jaw: str
+
+
+def joint_topics(arm: str) -> tuple[str, str]:
+    """The joint topic of ``arm`` in dVRK 1.x and 2.x naming."""
+    return f"/dvrk/{arm}/state_joint_current", f"/{arm}/measured_js"
+
+
+def jaw_topics(arm: str) -> tuple[str, str]:
+    """The jaw topic of ``arm`` in dVRK 1.x and 2.x naming (same order as joint_topics)."""
+    return f"/dvrk/{arm}/state_jaw_current", f"/{arm}/jaw/measured_js"
+
+
+def arms_in(topics) -> list[str]:
+    """The arms whose joint topic (either naming) is among ``topics``."""
+    return [a for a in ARMS if any(t in topics for t in joint_topics(a))]
+
+
+def resolve_topics(available: dict[str, tuple[str, int]], sel: TopicSelection, where: str) -> ResolvedTopics:
+    """Choose the arm and the image, joint and jaw topics of a bag.
+
+    available: topic -> (message type, message count). Raises InputError naming
+    ``where`` (the bag) and what to pass when the choice is missing or ambiguous.
+    """
+    present = {t for t, (_, n) in available.items() if n > 0}
+    arm = sel.arm
+    if arm is None:
+        found = arms_in(present)
+        if len(found) > 1 and sel.joint is None:
+            raise InputError(f"{where}: joint topics of several arms ({', '.join(found)}); "
+                             "choose one with --arm")
+        arm = found[0] if found else DEFAULT_ARM
+    image = sel.image or next((t for t in IMAGE_TOPICS if t in available), None)
+    if image is None or image not in available:
+        raise InputError(f"{where}: no left image topic ({sel.image or ' or '.join(IMAGE_TOPICS)}); "
+                         f"topics: {', '.join(sorted(available)) or 'none'}; name it with --image-topic")
+    naming = 1 if joint_topics(arm)[1] in present and joint_topics(arm)[0] not in present else 0
+    joint = sel.joint or joint_topics(arm)[naming]
+    if joint not in present:
+        others = [a for a in arms_in(present) if a != arm]
+        hint = (f"; the bag has joint topics for {', '.join(others)}: use --arm {others[0]}" if others
+                else "; name it with --joint-topic")
+        asked = sel.joint or " or ".join(joint_topics(arm))
+        raise InputError(f"{where}: no messages on the joint topic of {arm} ({asked}){hint}")
+    jaw = sel.jaw or jaw_topics(arm)[naming]
+    return ResolvedTopics(arm, image, joint, jaw)
+
+
+def handeye_arm(keys, sel: TopicSelection, where: str) -> str:
+    """The arm whose ``<ARM>_tvec`` / ``<ARM>_rvec`` keys are read from handeye.yaml.
+
+    The arm asked for; else the prefix of the file's only ``*_tvec`` key; else PSM1.
+    """
+    if sel.arm is not None:
+        return sel.arm
+    found = sorted(k[: -len("_tvec")] for k in keys if isinstance(k, str) and k.endswith("_tvec"))
+    if len(found) > 1:
+        raise InputError(f"{where}: hand-eye keys for several arms ({', '.join(found)}); choose one with --arm")
+    return found[0] if found else DEFAULT_ARM

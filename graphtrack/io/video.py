@@ -1,0 +1,88 @@
+"""Videos written at the recording's own frame rate.
+
+:class:`StampedVideoWriter` takes (image, stamp) pairs and writes an mp4
+(OpenCV's mp4v codec) whose frame rate is the recording's: 1 / the median
+interval between the stamps of the first ``probe`` frames (held back until
+then), or ``fallback_fps`` when the stamps do not tell (fewer than two
+finite, increasing stamps).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from graphtrack.errors import InputError
+
+FALLBACK_FPS = 30.0
+
+
+def frame_rate(stamps, fallback: float = FALLBACK_FPS) -> float:
+    """1 / median positive interval of ``stamps`` (s), within [1, 240] frames/s; else ``fallback``."""
+    dt = np.diff(np.asarray(stamps, float))
+    dt = dt[np.isfinite(dt) & (dt > 0)]
+    if dt.size == 0:
+        return float(fallback)
+    return float(np.clip(1.0 / np.median(dt), 1.0, 240.0))
+
+
+class StampedVideoWriter:
+    """``write(image, stamp)`` BGR frames of one size; ``close()`` (or a with block) finishes the file."""
+
+    def __init__(self, path: str | Path, fps: float | None = None, probe: int = 10,
+                 fallback_fps: float = FALLBACK_FPS):
+        self.path = Path(path)
+        self.fps = None if fps is None else float(fps)
+        self.probe = int(probe)
+        self.fallback_fps = float(fallback_fps)
+        self.frames_written = 0
+        self._held: list[tuple[np.ndarray, float]] = []
+        self._writer = None
+        self._size = None
+
+    def write(self, image: np.ndarray, stamp: float = float("nan")) -> None:
+        if self._writer is None and self.fps is None:
+            self._held.append((image, float(stamp)))
+            if len(self._held) >= self.probe:
+                self._flush()
+            return
+        self._emit(image)
+
+    def _flush(self) -> None:
+        if self.fps is None:
+            self.fps = frame_rate([s for _, s in self._held], self.fallback_fps)
+        held, self._held = self._held, []
+        for image, _ in held:
+            self._emit(image)
+
+    def _emit(self, image: np.ndarray) -> None:
+        if self._writer is None:
+            self._size = (int(image.shape[1]), int(image.shape[0]))
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"),
+                                           self.fps or self.fallback_fps, self._size)
+            if not self._writer.isOpened():
+                raise InputError(f"{self.path}: cannot open an mp4 video writer")
+        if (image.shape[1], image.shape[0]) != self._size:
+            image = cv2.resize(image, self._size)
+        self._writer.write(np.ascontiguousarray(image))
+        self.frames_written += 1
+
+    @property
+    def frames_received(self) -> int:
+        """Frames given to write(), including those held back until the frame rate is known."""
+        return self.frames_written + len(self._held)
+
+    def close(self) -> None:
+        if self._held:
+            self._flush()
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

@@ -1,0 +1,69 @@
+"""A study's options and its cells (one tracking run each); see :mod:`graphtrack.study.plan`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from graphtrack.detect.options import OBSERVATION, DetectionOptions
+from graphtrack.estimate import ESTIMATORS
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.track import TrackOptions
+
+STUDY_VERSION = 1
+#: Options that change a cell's result: a study folder holds one value of each.
+CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
+                "alpha", "beta", "markers")
+
+
+@dataclass
+class StudyOptions:
+    """estimators x observations: the cells run on every recording (the kinematics
+    baseline once per recording); detection, estimation, seed: as in every cell's
+    TrackOptions; max_frames: per recording (None: all); repeats: runs (seeds
+    seed .. seed+repeats-1) of each seed-dependent cell."""
+
+    estimators: list[str] = field(default_factory=lambda: list(ESTIMATORS))
+    observations: list[str] = field(default_factory=lambda: [OBSERVATION])
+    detection: DetectionOptions = field(default_factory=DetectionOptions)
+    estimation: EstimatorOptions = field(default_factory=EstimatorOptions)
+    seed: int = 0
+    max_frames: int | None = None
+    repeats: int = 1
+
+    def cell_options(self) -> dict:
+        """The CELL_OPTIONS values (flat, as study.json and done.json store them)."""
+        d, e = self.detection, self.estimation
+        return {"detector": d.detector, "weights": d.weights, "max_frames": self.max_frames,
+                "particles": e.particles, "lag": e.lag, "smoother": e.smoother, "seed": self.seed,
+                "alpha": d.alpha, "beta": d.beta, "markers": d.markers}
+
+
+@dataclass
+class Cell:
+    recording: str          # display name (folder name under runs/)
+    path: str               # the recording's path
+    estimator: str
+    observation: str | None  # None for kinematics
+    out: str                # the cell's output folder
+    options: dict           # StudyOptions.cell_options()
+    video: bool = False     # also write overlay.mp4
+    repeat: int = 0         # 0: the study's seed; r: a repeat with seed + r (its options' seed)
+
+    @property
+    def key(self) -> str:
+        k = self.estimator if self.observation is None else f"{self.estimator}-{self.observation}"
+        return k if self.repeat == 0 else f"{k}.seed{self.options['seed']}"
+
+    @property
+    def row(self) -> tuple[str, str]:
+        return ("—" if self.observation is None else self.observation, self.estimator)
+
+    def track_options(self) -> TrackOptions:
+        """The cell's TrackOptions (one seed for the observation draws and the estimator)."""
+        o = self.options
+        return TrackOptions(
+            estimator=self.estimator, observation=self.observation or OBSERVATION,
+            detection=DetectionOptions(detector=o["detector"], weights=o["weights"], alpha=o["alpha"],
+                                       beta=o["beta"], markers=o["markers"]),
+            estimation=EstimatorOptions(particles=o["particles"], seed=o["seed"], lag=o["lag"],
+                                        smoother=o["smoother"]),
+            seed=o["seed"])

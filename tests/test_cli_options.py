@@ -1,0 +1,75 @@
+"""The command line's options: defaults shown by --help are the options dataclasses' own,
+``track`` runs the smoother by default, ``refine`` offers no filter/smoother options."""
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from graphtrack.cli import build_parser
+from graphtrack.commands.compare import study_options_from_args
+from graphtrack.commands.track import options_from_args
+from graphtrack.detect.options import DetectionOptions
+from graphtrack.errors import InputError
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.study import StudyOptions
+from graphtrack.track import TrackOptions
+
+
+def _subparsers():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices
+
+
+def test_every_option_help_shows_its_default():
+    for name, p in _subparsers().items():
+        for a in p._actions:
+            if not a.option_strings or a.help in (None, argparse.SUPPRESS) or isinstance(a, argparse._HelpAction):
+                continue
+            shown = "%(default)" in a.help or p.formatter_class is argparse.ArgumentDefaultsHelpFormatter
+            assert shown, f"{name} {a.option_strings[0]}: --help does not show the default"
+    text = _subparsers()["track"].format_help()
+    assert f"(default: {DetectionOptions.alpha})" in text and "(default: smoother)" in text
+    assert "(default: 540x960)" in _subparsers()["simulate"].format_help()
+
+
+def test_track_runs_the_smoother_unless_told_otherwise():
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O"])
+    assert options_from_args(args) == TrackOptions()
+    assert TrackOptions().estimator == "smoother"
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--estimator", "pf", "--seed", "4",
+                                      "--particles", "50", "--alpha", "7", "--no-markers"])
+    o = options_from_args(args)
+    assert (o.estimator, o.seed, o.estimation.seed, o.estimation.particles) == ("pf", 4, 4, 50)
+    assert (o.detection.alpha, o.detection.markers) == (7.0, False)
+
+
+def test_refine_offers_no_particles():
+    refine = _subparsers()["refine"]
+    flags = {s for a in refine._actions for s in a.option_strings}
+    assert "--particles" not in flags and "--lag" not in flags
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["refine", "SEQ", "--out", "O", "--particles", "5"])
+
+
+def test_compare_builds_the_same_defaults_as_the_library():
+    args = build_parser().parse_args(["compare", "SEQ", "--out", "O"])
+    o = study_options_from_args(args)
+    d = StudyOptions()
+    assert (o.detection, o.estimation, o.seed, o.estimators) == (d.detection, d.estimation, d.seed, d.estimators)
+
+
+@pytest.mark.parametrize("extra,what", [(["--particles", "0"], "--particles"), (["--lag", "-1"], "--lag"),
+                                        (["--detect-scale", "2"], "--detect-scale")])
+def test_bad_values_name_the_option(extra, what):
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", *extra])
+    with pytest.raises(InputError, match=what):
+        options_from_args(args)
+
+
+def test_estimator_keywords():
+    assert EstimatorOptions(particles=7, seed=2).keywords("pf") == {"particles": 7, "seed": 2}
+    assert EstimatorOptions(lag=2.0).keywords("smoother") == {"lag": 2.0, "smoother": "isam2"}
+    assert EstimatorOptions(edge_bias=False).keywords("batch") == {"edge_bias": False}
+    assert EstimatorOptions().keywords("kinematics") == {}

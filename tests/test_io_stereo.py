@@ -1,0 +1,179 @@
+"""Stereo recordings in: right images matched by stamp (bag, folder), raw and rectified
+pairs, missing / corrupt right frames, the right camera's projection."""
+import json
+from pathlib import Path
+from types import SimpleNamespace as NS
+
+import cv2
+import numpy as np
+import pytest
+
+from graphtrack.errors import InputError
+from graphtrack.geometry.camera import Calibration, Camera, load_calibration, save_calibration
+from graphtrack.io.bag_write import write_bag
+from graphtrack.io.folder import write_folder
+from graphtrack.io.handeye import save_handeye
+from graphtrack.io.labels import write_labels
+from graphtrack.io.recording import open_recording
+
+H, W = 48, 64
+NO_ROBOT = {"robot_loader": lambda p: None}
+K = np.array([[50.0, 0, 31.5], [0, 52.0, 23.5], [0, 0, 1]])
+
+
+def rot(rvec):
+    return cv2.Rodrigues(np.asarray(rvec, float))[0]
+
+
+def stereo_calibration(rectified: bool) -> Calibration:
+    left = Camera(K.copy(), np.zeros(5) if rectified else np.array([-0.2, 0.05, 1e-3, -1e-3, 0.0]), H, W)
+    if rectified:
+        return Calibration(left, Camera(K.copy(), np.zeros(5), H, W), np.eye(3), np.array([-0.005, 0.0, 0.0]))
+    K2 = K.copy()
+    K2[0, 2] += 1.5
+    right = Camera(K2, np.array([-0.18, 0.04, 0.0, 5e-4, 0.0]), H, W)
+    return Calibration(left, right, rot([0.01, -0.035, 0.004]), np.array([-0.0049, 0.0002, 0.0003]))
+
+
+def make_seq(seq: Path, calib: Calibration, n=6, right=True, drop=()):
+    seq.mkdir(parents=True, exist_ok=True)
+    robot = {"DH_params": [{"type": "revolute", "alpha": 0, "A": 0, "theta": 0, "D": 0}] * 6, "has_gripper": True}
+    (seq / "robot.json").write_text(json.dumps(robot))
+    save_calibration(seq / "camera_calibration.yaml", calib)
+    save_handeye(seq / "handeye.yaml", np.eye(4))
+    rng = np.random.default_rng(3)
+    frames = [NS(stamp=1_600_000_000.0 + i / 30, image=rng.integers(0, 256, (H, W, 3), dtype=np.uint8),
+                 joints=rng.normal(size=6), jaw=0.1,
+                 image_right=None if (not right or i in drop) else rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
+              for i in range(n)]
+    return frames
+
+
+@pytest.mark.parametrize("form", ["folder", "bag", "bag-compressed"])
+@pytest.mark.parametrize("rectified", [True, False])
+def test_round_trip(tmp_path, form, rectified):
+    calib = stereo_calibration(rectified)
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, calib)
+    if form == "folder":
+        write_folder(seq, frames)
+    else:
+        write_bag(seq / "r.bag", frames, compressed=form == "bag-compressed")
+    write_labels(seq / "labels_right.csv", {1: np.array([3.5, 4.25])})
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.stereo and rec.labels_right[1].tolist() == [3.5, 4.25]
+    out = list(rec.frames())
+    assert len(out) == len(frames)
+    for f, ref in zip(out, frames):
+        np.testing.assert_array_equal(f.image, ref.image)
+        np.testing.assert_array_equal(f.image_right, ref.image_right)
+    assert sum(rec.right_skips.values()) == 0 and rec.warnings == []
+    c = rec.calibration
+    np.testing.assert_allclose(c.R, calib.R, atol=1e-12)
+    np.testing.assert_allclose(c.T, calib.T, atol=1e-12)          # file mm -> metres
+    assert (seq / "camera_calibration.yaml").read_text().count("T: [") == 1
+    assert load_calibration(seq / "camera_calibration.yaml").T[0] == pytest.approx(calib.T[0])
+
+
+def test_mono_recording_has_no_right_images(tmp_path):
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, Calibration(Camera(K.copy(), np.zeros(5), H, W)), right=False)
+    write_bag(seq / "r.bag", frames)
+    rec = open_recording(seq, **NO_ROBOT)
+    assert not rec.stereo and rec.labels_right is None
+    assert all(f.image_right is None for f in rec.frames()) and sum(rec.right_skips.values()) == 0
+
+
+@pytest.mark.parametrize("form", ["folder", "bag"])
+def test_missing_right_frame_is_left_only_and_counted(tmp_path, form):
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(True), drop=(2,))
+    (write_folder(seq, frames) if form == "folder" else write_bag(seq / "r.bag", frames))
+    rec = open_recording(seq, **NO_ROBOT)
+    out = list(rec.frames())
+    assert [f.image_right is None for f in out] == [False, False, True, False, False, False]
+    np.testing.assert_array_equal(out[3].image_right, frames[3].image_right)   # no shift after the gap
+    assert rec.right_skips["missing"] == 1
+    assert any("1 frames without a usable right image" in w for w in rec.warnings)
+
+
+def test_corrupt_right_file_and_wrong_size(tmp_path):
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(False))
+    frames[4].image_right = np.zeros((H + 2, W, 3), np.uint8)
+    write_folder(seq, frames)
+    (seq / "frames_right" / "000001.png").write_bytes(b"not a png")
+    rec = open_recording(seq, **NO_ROBOT)
+    out = list(rec.frames())
+    assert [f.image_right is None for f in out] == [False, True, False, False, True, False]
+    assert rec.right_skips == {"missing": 0, "corrupt": 1, "image_size": 1}
+
+
+def test_bag_right_matched_by_stamp_not_order(tmp_path):
+    """Right stamps offset by +4 ms (within tolerance) and one right image missing in the middle."""
+    from graphtrack.io import bag
+
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(True), n=5)
+    lefts = [NS(stamp=f.stamp, image=f.image, joints=f.joints, jaw=f.jaw) for f in frames]
+    rights = [NS(stamp=f.stamp + 0.004, image=f.image_right, joints=f.joints, jaw=f.jaw)
+              for i, f in enumerate(frames) if i != 1]
+    write_bag(tmp_path / "l.bag", lefts)
+    write_bag(tmp_path / "r.bag", rights)
+    _merge_bags(tmp_path / "l.bag", tmp_path / "r.bag", seq / "s.bag", bag.IMAGE_TOPIC, bag.RIGHT_IMAGE_TOPIC)
+    rec = open_recording(seq, **NO_ROBOT)
+    out = list(rec.frames())
+    assert [f.image_right is None for f in out] == [False, True, False, False, False]
+    for f in out:
+        if f.image_right is not None:
+            np.testing.assert_array_equal(f.image_right, frames[f.index].image_right)
+    assert rec.right_skips["missing"] == 1
+
+
+def _merge_bags(left, right, out, left_topic, right_topic):
+    """Left bag as is + the right bag's image messages renamed to the right topic."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    msgs = []
+    with Reader(left) as r:
+        for c, t, raw in r.messages():
+            msgs.append((t, c.topic, c.msgtype, raw))
+    with Reader(right) as r:
+        for c, t, raw in r.messages():
+            if c.topic == left_topic:
+                msgs.append((t, right_topic, c.msgtype, raw))
+    with Writer(out) as w:
+        conns = {}
+        for t, topic, typ, raw in sorted(msgs, key=lambda m: m[0]):
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=ts)
+            w.write(conns[topic], t, raw)
+
+
+@pytest.mark.parametrize("rectified", [True, False])
+def test_right_projection_matches_opencv(tmp_path, rectified):
+    calib = stereo_calibration(rectified)
+    save_calibration(tmp_path / "c.yaml", calib)
+    c = load_calibration(tmp_path / "c.yaml")
+    P = np.array([[0.01, -0.005, 0.08], [-0.02, 0.01, 0.12], [0.0, 0.0, 0.1]])
+    rvec = cv2.Rodrigues(calib.R)[0]
+    ref, _ = cv2.projectPoints(P, rvec, calib.T, calib.right.K, calib.right.dist)
+    np.testing.assert_allclose(c.project_right(P), ref.reshape(-1, 2), atol=1e-9)
+    np.testing.assert_allclose(c.right_T_left[:3, 3], calib.T, atol=1e-12)
+    if rectified:  # same row, disparity f b / Z
+        uvl = c.left.project_raw(P)
+        np.testing.assert_allclose(c.project_right(P)[:, 1], uvl[:, 1], atol=1e-9)
+        np.testing.assert_allclose(uvl[:, 0] - c.project_right(P)[:, 0], K[0, 0] * 0.005 / P[:, 2], atol=1e-9)
+    img = np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8)
+    np.testing.assert_array_equal(c.undistort_right(img), cv2.remap(img, *cv2.initUndistortRectifyMap(
+        c.right.K, c.right.dist, None, c.right.K, (W, H), cv2.CV_16SC2), cv2.INTER_LINEAR))
+
+
+def test_R_must_be_a_rotation(tmp_path):
+    calib = stereo_calibration(True)
+    calib.R = np.diag([1.0, 1.0, 2.0])
+    save_calibration(tmp_path / "c.yaml", calib)
+    with pytest.raises(InputError, match="'R' is not a rotation"):
+        load_calibration(tmp_path / "c.yaml")

@@ -1,0 +1,65 @@
+"""Arm and topic choice: dVRK 1.x and 2.x namings, PSM1-3, overrides, ambiguity."""
+import pytest
+
+from graphtrack.errors import InputError
+from graphtrack.io.topics import TopicSelection, handeye_arm, resolve_topics
+
+IMG = ("sensor_msgs/msg/Image", 5)
+JS = ("sensor_msgs/msg/JointState", 5)
+
+
+def test_dvrk1_psm1_default():
+    r = resolve_topics({"/stereo/left/image": IMG, "/dvrk/PSM1/state_joint_current": JS,
+                        "/dvrk/PSM1/state_jaw_current": JS}, TopicSelection(), "b.bag")
+    assert (r.arm, r.image, r.joint, r.jaw) == ("PSM1", "/stereo/left/image", "/dvrk/PSM1/state_joint_current",
+                                                "/dvrk/PSM1/state_jaw_current")
+
+
+def test_dvrk2_psm2_detected_without_arm():
+    r = resolve_topics({"/stereo/left/image/compressed": IMG, "/PSM2/measured_js": JS,
+                        "/PSM2/jaw/measured_js": JS, "/ECM/measured_js": JS}, TopicSelection(), "b.bag")
+    assert (r.arm, r.image, r.joint, r.jaw) == ("PSM2", "/stereo/left/image/compressed", "/PSM2/measured_js",
+                                                "/PSM2/jaw/measured_js")
+
+
+def test_several_arms_need_a_choice_and_the_choice_is_honoured():
+    topics = {"/stereo/left/image": IMG, "/PSM1/measured_js": JS, "/dvrk/PSM3/state_joint_current": JS}
+    with pytest.raises(InputError, match=r"b\.bag: joint topics of several arms \(PSM1, PSM3\).*--arm"):
+        resolve_topics(topics, TopicSelection(), "b.bag")
+    assert resolve_topics(topics, TopicSelection(arm="PSM3"), "b.bag").joint == "/dvrk/PSM3/state_joint_current"
+
+
+def test_wrong_arm_names_the_arm_present():
+    with pytest.raises(InputError, match=r"no messages on the joint topic of PSM1.*use --arm PSM2"):
+        resolve_topics({"/stereo/left/image": IMG, "/PSM2/measured_js": JS}, TopicSelection(arm="PSM1"), "b.bag")
+
+
+def test_overrides_and_their_absence():
+    topics = {"/cam/left": IMG, "/my/joints": JS, "/my/jaw": JS}
+    r = resolve_topics(topics, TopicSelection(image="/cam/left", joint="/my/joints", jaw="/my/jaw"), "b.bag")
+    assert (r.image, r.joint, r.jaw) == ("/cam/left", "/my/joints", "/my/jaw")
+    with pytest.raises(InputError, match=r"no left image topic.*--image-topic"):
+        resolve_topics(topics, TopicSelection(joint="/my/joints"), "b.bag")
+    with pytest.raises(InputError, match=r"joint topic of PSM1 \(/nope\)"):
+        resolve_topics(topics, TopicSelection(image="/cam/left", joint="/nope"), "b.bag")
+
+
+def test_empty_topic_does_not_count():
+    with pytest.raises(InputError, match="no messages on the joint topic"):
+        resolve_topics({"/stereo/left/image": IMG, "/PSM1/measured_js": ("sensor_msgs/msg/JointState", 0)},
+                       TopicSelection(), "b.bag")
+
+
+@pytest.mark.parametrize("bad", [dict(arm="PSM4"), dict(arm="psm1"), dict(joint="PSM1/measured_js"),
+                                 dict(image="")])
+def test_selection_refuses_bad_names(bad):
+    with pytest.raises(InputError, match="--"):
+        TopicSelection(**bad)
+
+
+def test_handeye_arm():
+    assert handeye_arm({"PSM2_tvec": 0, "PSM2_rvec": 0}, TopicSelection(), "h") == "PSM2"
+    assert handeye_arm({"PSM2_tvec": 0}, TopicSelection(arm="PSM3"), "h") == "PSM3"
+    assert handeye_arm({}, TopicSelection(), "h") == "PSM1"
+    with pytest.raises(InputError, match="several arms"):
+        handeye_arm({"PSM1_tvec": 0, "PSM2_tvec": 0}, TopicSelection(), "h")
