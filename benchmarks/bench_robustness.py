@@ -107,13 +107,13 @@ def figures(study: Path, paths: list[str]) -> dict[str, list[dict]]:
     """Per estimator, one dict of :func:`graphtrack.eval.robustness.recording_figures` per recording."""
     from graphtrack.eval.robustness import recording_figures
 
-    out: dict[str, list[dict]] = {e: [] for e in ESTIMATORS if e != "kinematics"}
+    out: dict[str, list[dict]] = {e: [] for e in ESTIMATORS}
     for path in paths:
         runs = study / "runs" / Path(path).name
         base = tip_errors(runs / "kinematics")
         dist = disturbances(Path(path))
         for est in out:
-            err = tip_errors(runs / f"{est}-line-intensities")
+            err = base if est == "kinematics" else tip_errors(runs / f"{est}-line-intensities")
             if err is None or base is None:
                 out[est].append({"failed": True})
                 continue
@@ -141,7 +141,7 @@ def summarise(figs: list[dict]) -> dict:
             "mean_px_max": float(mean.max()) if mean.size else float("nan"),
             "converged15": float(np.mean([f["startup_frames"] <= LIMIT for f in judged])) if judged else float("nan"),
             "startup_judged": len(judged),
-            "startup_frames_p95": float(np.percentile([f["startup_frames"] for f in judged], 95)) if judged
+            "startup_frames_p95": float(np.quantile([f["startup_frames"] for f in judged], 0.95, method="higher")) if judged
             else float("nan"),
             "never_worse": float(np.mean(worst <= WORSE_TOL_PX)) if worst.size else float("nan"),
             "never_worse_strict": float(np.mean(worst <= 0.0)) if worst.size else float("nan"),
@@ -155,6 +155,7 @@ def plot(study: Path, per_est: dict[str, list[dict]]) -> str:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (ScalarFormatter)
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for est, figs in per_est.items():
@@ -162,6 +163,8 @@ def plot(study: Path, per_est: dict[str, list[dict]]) -> str:
         if v.size:
             ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=est)
     ax.set_xscale("log")
+    ax.set_ylim(0, 1.02)
+    ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     ax.set_xlabel("per-recording mean 2-D tip error against the exact tip (px, 540x960)")
     ax.set_ylabel("fraction of recordings")
     ax.grid(True, which="both", alpha=0.3)
@@ -178,10 +181,11 @@ def table(res: dict) -> str:
             ("never_worse_strict", "never worse (strict)"), ("reacquired15", "re-acquired <= 15 frames"),
             ("reacquisitions", "re-acquisitions"), ("failed", "failed runs")]
     rows = ["| estimator | " + " | ".join(k[1] for k in keys) + " |", "|---" * (len(keys) + 1) + "|"]
-    for est in ("pf", "smoother", "batch"):
+    for est in ESTIMATORS:
         s = res[est]
-        rows.append(f"| {est} | " + " | ".join(f"{s[k]:.3g}" if isinstance(s[k], float) else str(s[k])
-                                                 for k, _ in keys) + " |")
+        cells = [("–" if est == "kinematics" and k not in ("mean_px_p50", "mean_px_p95", "mean_px_max", "failed")
+                  else f"{s[k]:.3g}" if isinstance(s[k], float) else str(s[k])) for k, _ in keys]
+        rows.append(f"| {est} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 
 
