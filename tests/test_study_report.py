@@ -23,7 +23,8 @@ def make_cell(root, rec, est, obs, seed=0, repeat=0, result=None, error=None):
 
 
 def res(mean, std, ms, fps):
-    return {"tip_error_percent_diagonal": {"mean": mean, "std": std}, "runtime_ms": {"median": ms}, "fps": fps}
+    return {"tip_error_percent_diagonal": {"mean": mean, "std": std}, "runtime_ms": {"median": ms}, "fps_steady": fps,
+            "fps": fps / 2}  # wall-clock fps counts the start-up: never the table's figure
 
 
 @pytest.fixture
@@ -90,7 +91,7 @@ def test_tables_by_hand(study):
     assert len(rows) == 1 + len(cells)
     by = {(x[0], x[2], x[3]): dict(zip(head, x)) for x in rows[1:]}
     assert by["A", "pf", "1"]["tip_error_percent_diagonal.mean"] == "3.0000"
-    assert by["A", "pf", "1"]["fps"] == "40.0000"
+    assert by["A", "pf", "1"]["fps"] == "20.0000" and by["A", "pf", "1"]["fps_steady"] == "40.0000"
     assert by["A", "pf", "1"]["tip_error_px.mean"] == "n/a"                 # not in the result
     assert by["B", "pf", "0"]["state"] == "error" and by["B", "pf", "0"]["error"] == "boom: detector crashed"
 
