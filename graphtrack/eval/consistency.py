@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 from tqdm import tqdm
 
 from factors.synthetic import make_scene, sequence
@@ -47,8 +48,6 @@ class NeesResult:
 
 def nees_band(runs: int, dof: int = 6, level: float = 0.95) -> tuple[float, float]:
     """Two-sided band of the mean of ``runs`` independent chi2(dof) values."""
-    from scipy.stats import chi2
-
     a = 0.5 * (1.0 - level)
     lo, hi = chi2.ppf([a, 1.0 - a], dof * runs) / runs
     return float(lo), float(hi)

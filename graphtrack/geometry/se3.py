@@ -170,7 +170,7 @@ def project_to_so3(M: np.ndarray) -> np.ndarray:
 
 def to_pose3(T: np.ndarray):
     """4x4 numpy -> gtsam.Pose3."""
-    import gtsam
+    import gtsam  # lazy: geometry is below every layer; only the factor graphs may load gtsam
 
     return gtsam.Pose3(np.asarray(T, dtype=float))
 
