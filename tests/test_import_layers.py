@@ -30,7 +30,7 @@ BELOW = {
     "estimate": {"factors"},
     "eval": {"estimate"},
     "track": {"eval"},
-    "study": {"track", "threads"},   # each study worker runs one thread
+    "study": {"track", "threads"},   # study workers run one thread each (limit_threads)
     "sim": {"detect"},
     "training": {"sim"},
     "commands": {"study", "training", "threads"},

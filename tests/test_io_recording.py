@@ -11,7 +11,8 @@ import pytest
 
 from graphtrack.errors import FrameError, InputError
 from graphtrack.geometry.camera import Calibration, Camera, save_calibration
-from graphtrack.io.bag import COMPRESSED_TOPIC, IMAGE_TOPIC, decode_image
+from graphtrack.io.bag import COMPRESSED_TOPIC, IMAGE_TOPIC
+from graphtrack.io.image_msg import decode_image
 from graphtrack.io.bag_write import write_bag
 from graphtrack.io.folder import write_folder
 from graphtrack.io.handeye import save_handeye

@@ -6,23 +6,18 @@ If the estimator is consistent, each NEES_t ~ chi2(6) and the mean of R
 INDEPENDENT values lies in the two-sided 95 % band chi2.ppf([0.025, 0.975], 6R) / R
 (R = 200: [5.53, 6.49]).
 
-Why independent runs, not one long sequence: a tracker's errors at
-consecutive frames are strongly correlated (the state moves by the motion
-model's small steps), so the time average of one sequence has a spread
-several times that of R independent values, and the band does not apply to
-it. Measured with the fixed-lag smoother on the synthetic scene (1 s lag,
-frames 60-299): the per-sequence mean NEES over 12 sequences was 5.99 on
-average, but individual sequences ranged 4.6-8.4 (sd 1.03 against the 0.22
-the band assumes: ~11 effectively independent values per 240 frames). So
-each run here contributes ONE value, at a frame drawn uniformly from
-[first, last), with its own seed (pixel and marker noise, random walk of the
-true E) and, optionally, its own hand-eye error drawn from a prior.
+Each run contributes ONE value, at a frame drawn uniformly from [first, last),
+with its own seed (pixel and marker noise, random walk of the true E) and,
+optionally, its own hand-eye error drawn from a prior: consecutive frames'
+errors are correlated, so the band does not apply to one sequence's time
+average (docs/decisions/nees-over-independent-runs.md).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 from tqdm import tqdm
 
 from graphtrack.detect.base import POLAR_MODELS, Observation
@@ -46,8 +41,6 @@ class NeesResult:
 
 def nees_band(runs: int, dof: int = 6, level: float = 0.95) -> tuple[float, float]:
     """Two-sided band of the mean of ``runs`` independent chi2(dof) values."""
-    from scipy.stats import chi2
-
     a = 0.5 * (1.0 - level)
     lo, hi = chi2.ppf([a, 1.0 - a], dof * runs) / runs
     return float(lo), float(hi)

@@ -29,11 +29,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from graphtrack.errors import InputError
-from graphtrack.io.outdir import writable_dir
 from graphtrack.geometry.camera import Calibration, save_calibration
-from graphtrack.geometry.se3 import matrix_to_quaternion, transform_points
+from graphtrack.geometry.se3 import matrix_to_bw, matrix_to_quaternion, transform_points
+from graphtrack.io.bag_write import write_bag
+from graphtrack.io.folder import write_folder
+from graphtrack.io.handeye import save_handeye
+from graphtrack.io.labels import write_labels
+from graphtrack.io.outdir import writable_dir
 from graphtrack.robot.description import save_robot_json
 from graphtrack.robot.kinematics import link_transforms
 from graphtrack.robot.psm import psm_large_needle_driver
@@ -202,8 +207,6 @@ class Simulation:
 
     def scenario(self) -> dict:
         """What a randomized recording drew (scenario.json; see sim/scenario.py)."""
-        from graphtrack.geometry.se3 import matrix_to_bw
-
         bw = matrix_to_bw(self.delta)
         cam = self.camera
         H, W = cam.height, cam.width
@@ -262,9 +265,6 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
     scenario.json (what was drawn; sim/scenario.py).
     Frames are rendered and written one at a time.
     """
-    from graphtrack.io.handeye import save_handeye
-    from graphtrack.io.labels import write_labels
-
     if image_format not in ("png", "jpeg"):
         raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
@@ -281,16 +281,10 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
         tf.write(TRUTH_COLUMNS + "\n")
         it = sim.frames(tf, labels, labels_right)
         if progress:
-            from tqdm import tqdm
-
             it = tqdm(it, total=sim.n, desc=f"simulate {scene}", unit="frame")
         if form == "bag":
-            from graphtrack.io.bag_write import write_bag
-
             write_bag(out / "recording.bag", it, compressed=compressed, image_format=image_format)
         else:
-            from graphtrack.io.folder import write_folder
-
             write_folder(out, it, image_ext="jpg" if image_format == "jpeg" else "png")
     write_labels(out / "labels.csv", labels)
     if labels_right is not None:

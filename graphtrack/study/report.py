@@ -165,7 +165,7 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
     """accumulated_error_<recording>.png: one curve per completed cell with labels (the
     study's own seed of a repeated one)."""
-    import matplotlib  # heavy, and only the plots need it
+    import matplotlib  # lazy: heavy, and only the plots need it (a study without plots never loads it)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
