@@ -107,12 +107,3 @@ def test_so3_exp_batch_matches_the_single_form_and_scipy():
     np.testing.assert_allclose(np.moveaxis(R, -1, 0), Rotation.from_rotvec(w).as_matrix(), atol=1e-14, rtol=0)
     assert se3.so3_exp_batch(np.zeros(3)).shape == (3, 3, 1)
     np.testing.assert_array_equal(se3.so3_exp_batch(np.zeros((2, 3))), np.broadcast_to(np.eye(3)[..., None], (3, 3, 2)))
-
-
-def test_so3_exp_batch_is_the_particle_filters_rotations_to_the_bit():
-    """The particle filter's own batched exponential (pf/projection.py) can be replaced by it
-    without moving a pinned trajectory."""
-    from graphtrack.estimate.pf.projection import rotations
-
-    w = _axis_angles(np.random.default_rng(4))
-    np.testing.assert_array_equal(se3.so3_exp_batch(w), rotations(w))

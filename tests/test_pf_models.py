@@ -145,18 +145,6 @@ def test_absurd_observations_stay_finite(scene, model):
     assert np.all(np.isfinite(ll))
 
 
-def test_particle_rotations_match_scipy():
-    """Component-major Rodrigues against scipy's rotation vectors, small angles included."""
-    from scipy.spatial.transform import Rotation
-
-    from graphtrack.estimate.pf.projection import rotations
-
-    rng = np.random.default_rng(1)
-    w = rng.standard_normal((500, 3)) * np.repeat([1.0, 1e-3, 1e-6, 1e-9, 0.0], 100)[:, None]
-    R = np.moveaxis(rotations(w), -1, 0)
-    np.testing.assert_allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-14)
-
-
 def test_pixel_model_matches_per_pixel_formula():
     """Pruned float32 product against the plain float64 formula, for tight clouds
     (most pixels scored against one edge), wide ones and a cloud wrapping theta."""

@@ -64,10 +64,10 @@ from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.estimate.options import PARTICLES
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
-from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
+from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
-from graphtrack.geometry.se3 import project_to_so3
+from graphtrack.geometry.se3 import project_to_so3, so3_exp_batch
 
 
 class ParticleFilter:
@@ -142,7 +142,7 @@ class ParticleFilter:
         self.logw = np.full(self.N, -np.log(self.N))
         self.t = 0
         self.x_mean = centre.copy()
-        self.R_mean = rotations(centre[None, 3:])[:, :, 0]
+        self.R_mean = so3_exp_batch(centre[None, 3:])[:, :, 0]
 
     @property
     def weights(self) -> np.ndarray:
