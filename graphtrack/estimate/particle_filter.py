@@ -131,6 +131,7 @@ class ParticleFilter:
         self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
+        self._buffers_right: dict = {}   # the right image's pixel buffers (its own sizes)
         self._geometry_cache = None
         self.reset()
 
@@ -211,20 +212,20 @@ class ParticleFilter:
         """The right image's term log P(z_right | right_T_left . E(x_n)), 0 without one."""
         if right is None or not self.ctx.stereo or not self._informative(right):
             return 0.0
-        return self._loglik(self._project(q, x, right=True, R=h.R), right)
+        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right)
 
     def _informative(self, observation) -> bool:
         return observation is not None and (observation.has_shaft
                                             or (self.use_markers and len(observation.markers) > 0))
 
-    def _loglik(self, h: Hypotheses, observation) -> np.ndarray:
+    def _loglik(self, h: Hypotheses, observation, buffers: dict | None = None) -> np.ndarray:
         n = len(h.valid)
         ll = np.zeros(n)
         if observation is None:
             return ll
         if observation.has_shaft:
             ll += om.shaft_loglik(observation, h.rho.T, lambda: h.theta.T, h.valid,
-                                  _buffers=self._buffers, cos_sin=(h.cos.T, h.sin.T),
+                                  _buffers=self._buffers if buffers is None else buffers, cos_sin=(h.cos.T, h.sin.T),
                                   **self.shaft_options)
         if self.use_markers and len(observation.markers):
             ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers,
