@@ -47,10 +47,10 @@ def test_stereo_run_and_its_metrics(recordings, tmp_path):
     st, _ = recordings
     m = track(st, tmp_path / "s", TrackOptions(detection=CANNY), progress=False, quiet=True, video=True)
     assert m["stereo"] is True and m["frames_left_only"] == 0
-    assert m["frames_scored_3d"] == 8 and m["frames_scored_right"] == 8
-    assert np.isfinite(m["tip_error_3d_mm"]["mean"]) and np.isfinite(m["tip_error_right_px"]["mean"])
+    assert m["frames_scored_3d_labels"] == 8 and m["frames_scored_right"] == 8
+    assert np.isfinite(m["tip_error_3d_labels_mm"]["mean"]) and np.isfinite(m["tip_error_right_px"]["mean"])
     doc = json.loads((tmp_path / "s" / "metrics.json").read_text())
-    assert doc["tip_error_3d_mm"] == m["tip_error_3d_mm"]
+    assert doc["tip_error_3d_labels_mm"] == m["tip_error_3d_labels_mm"]
     import cv2
     cap = cv2.VideoCapture(str(tmp_path / "s" / "overlay.mp4"))
     ok, img = cap.read()
@@ -87,8 +87,8 @@ def test_triangulated_labels_hand_computed():
     np.testing.assert_allclose(triangulate(cal, uL[None], uR[None])[0], X, atol=1e-9)
     est = np.array([[0.010, 0.020, 0.101]])
     doc = stereo_tip_metrics(cal, [7], est, {7: uL}, {7: uR})
-    assert doc["frames_scored_3d"] == 1
-    assert doc["tip_error_3d_mm"]["mean"] == pytest.approx(1.0, abs=1e-6)
+    assert doc["frames_scored_3d_labels"] == 1
+    assert doc["tip_error_3d_labels_mm"]["mean"] == pytest.approx(1.0, abs=1e-6)
     # right image: the estimate projects to (1000 * 0.005 / 0.101 + 479.5, 1000 * 0.02 / 0.101 + 269.5)
     expect = np.hypot(1000 * 0.005 / 0.101 - 50.0, 1000 * 0.020 / 0.101 - 200.0)
     assert doc["tip_error_right_px"]["mean"] == pytest.approx(expect, rel=1e-9)

@@ -51,8 +51,8 @@ def stereo_tip_metrics(calibration, frames, tips_3d: np.ndarray, labels: dict | 
     left-camera tips ``tips_3d`` (F, 3) m (NaN where there is none):
 
     tip_error_right_px: summary of the raw right-image tip error (labels_right.csv);
-    frames_scored_right; tip_error_3d_mm: summary of |X_est - X| against the
-    triangulated labels (labels.csv and labels_right.csv); frames_scored_3d.
+    frames_scored_right; tip_error_3d_labels_mm: summary of |X_est - X| against the
+    triangulated labels (labels.csv and labels_right.csv); frames_scored_3d_labels.
     Empty without a right camera or labels_right."""
     if calibration.right is None or not labels_right:
         return {}
@@ -70,5 +70,5 @@ def stereo_tip_metrics(calibration, frames, tips_3d: np.ndarray, labels: dict | 
         i = index.get(int(f))
         if i is not None and np.all(np.isfinite(tips_3d[i])):
             err3.append(1e3 * float(np.linalg.norm(tips_3d[i] - X)))
-    doc.update({"tip_error_3d_mm": summary(np.array(err3)), "frames_scored_3d": len(err3)})
+    doc.update({"tip_error_3d_labels_mm": summary(np.array(err3)), "frames_scored_3d_labels": len(err3)})
     return doc
