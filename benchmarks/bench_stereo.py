@@ -97,33 +97,33 @@ def _accuracy(out: dict, work: Path) -> None:
 
 
 def _pf(out: dict) -> None:
-    from factors.synthetic import observe
     from graphtrack.detect.base import Observation
     from graphtrack.estimate.particle_filter import ParticleFilter
-    from graphtrack.estimate.pf.synthetic import make_scene
     from graphtrack.geometry.camera import Camera
     from graphtrack.io.context import TrackingContext
-    from graphtrack.io.frame import Frame
     from graphtrack.robot.features import base_features
     from graphtrack.sim.stereo import rig, to_right
+    from graphtrack.sim.synthetic import HANDEYE_ERROR, Scene, make_scene, observe, sequence
 
     scene = make_scene()
-    cam = scene.ctx.camera
+    cam = scene.camera
     C = to_right(*rig())
     right = Camera(cam.K.copy(), np.zeros(5), cam.height, cam.width)
-    ctx = TrackingContext(scene.ctx.robot, cam, scene.ctx.handeye, right, C)
+    ctx = TrackingContext(scene.robot, cam, scene.E0, right, C)
+    E_true = scene.true_E(HANDEYE_ERROR)
+    seq = sequence(64, seed=0, scene=scene, pixels_per_edge=250, outliers=0.05, marker_model="point")
     rng = np.random.default_rng(0)
     frames = []
-    for t in range(64):
-        q = scene.joints(t)
-        obs = scene.observation(q, "line-intensities", rng, n_pixels=250, outliers=0.05)
-        m = base_features(ctx.robot, q).transformed(scene.E_true).points
+    for f in seq.frames:
+        # all four markers in each image, visible or not, as bench_pf.py
+        m = base_features(scene.robot, f.q).transformed(E_true).points
         mk = cam.project_undistorted(m) + rng.standard_normal((4, 2))
-        left = Observation(obs.model, pixels=obs.pixels, markers=mk)
-        px, _, _, _ = observe(ctx.robot, right, q, C @ scene.E_true, rng, pixels_per_edge=250)
-        mr = right.project_undistorted(base_features(ctx.robot, q).transformed(C @ scene.E_true).points)
-        frames.append((Frame(t, t / 30, None, q[:6], q[6]), left,
-                       Observation("line-intensities", pixels=px, markers=mr + rng.standard_normal((4, 2)))))
+        left = Observation("line-intensities", pixels=f.pixels, markers=mk, edge_ids=np.arange(2))
+        o = observe(Scene(scene.robot, right, scene.E0), f.q, C @ E_true, rng, pixels_per_edge=250,
+                    outliers=0.05, marker_model="point")
+        mr = right.project_undistorted(m @ C[:3, :3].T + C[:3, 3]) + rng.standard_normal((4, 2))
+        frames.append((f.frame(), left, Observation("line-intensities", pixels=o.pixels, markers=mr,
+                                                    edge_ids=np.arange(2))))
     for stereo in (True, False):
         pf = ParticleFilter(ctx, particles=1000, seed=0)
         ts = []

@@ -9,7 +9,6 @@ from factors.limb import LimbPairing
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.shaft_pixels import shaft_pixels_factor
-from factors.synthetic import make_scene, observe, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate.batch import BatchEstimator
 from graphtrack.estimate.particle_filter import ParticleFilter
@@ -20,6 +19,7 @@ from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features
 from graphtrack.sim.stereo import rig, to_right
+from graphtrack.sim.synthetic import Scene, make_scene, observe, sequence
 
 
 def right_rig(cam: Camera):
@@ -36,7 +36,8 @@ def world():
     right, C = right_rig(cam)
     f = frames[1]
     rng = np.random.default_rng(1)
-    px, lines, mk, _ = observe(robot, right, f.q, C @ f.E_true, rng, pixel_noise=1.0, marker_noise=1.0)
+    o = observe(Scene(robot, right, E0), f.q, C @ f.E_true, rng, pixel_noise=1.0, marker_noise=1.0)
+    px, lines, mk = o.pixels, o.lines, o.markers
     F = base_features(robot, f.q)
     axis = ShaftAxis.make(F.shaft_p0[0], F.shaft_d[0], F.shaft_r[0])
     return robot, cam, right, C, E0, f, F, axis, px, lines, mk
@@ -104,7 +105,7 @@ def test_right_camera_factor_jacobians(world):
 def test_right_camera_factor_is_zero_at_the_truth_through_the_rig(world):
     """Noise-free right pixels are on the limb projected through C . E_true (not through E_true)."""
     robot, cam, right, C, E0, f, F, axis, px, lines, mk = world
-    px0, _, _, _ = observe(robot, right, f.q, C @ f.E_true, np.random.default_rng(0), pixel_noise=0.0)
+    px0 = observe(Scene(robot, right, E0), f.q, C @ f.E_true, np.random.default_rng(0), pixel_noise=0.0).pixels
     x = gtsam.symbol("x", 0)
     fac, fn = _with_fn(shaft_pixels_factor, x, px0[0], axis, right.K, 1.5, "none", extrinsic=C)
     plain, fn_plain = _with_fn(shaft_pixels_factor, x, px0[0], axis, right.K, 1.5, "none")
@@ -120,7 +121,8 @@ def test_pf_stereo_likelihood_is_the_sum_of_two_mono_ones(world):
     bw(x') = C bw(x) C^-1 (so that bw(x') . C E0 = C . bw(x) E0)."""
     robot, cam, right, C, E0, f, F, axis, px, lines, mk = world
     rng = np.random.default_rng(2)
-    pxl, _, mkl, _ = observe(robot, cam, f.q, f.E_true, rng, pixel_noise=1.0, marker_noise=1.0)
+    ol = observe(Scene(robot, cam, E0), f.q, f.E_true, rng, pixel_noise=1.0, marker_noise=1.0)
+    pxl, mkl = ol.pixels, ol.markers
     obs_l = Observation("line-intensities", pixels=pxl, markers=mkl)
     obs_r = Observation("line-intensities", pixels=px, markers=mk)
     stereo = ParticleFilter(TrackingContext(robot, cam, E0, right, C), particles=64, seed=0)
@@ -154,7 +156,8 @@ def test_stereo_recovers_the_depth_one_image_cannot():
     rng = np.random.default_rng(12)
     right_obs = []
     for f in frames:
-        px, _, mk, _ = observe(robot, right, f.q, C @ f.E_true, rng, **kw)
+        o = observe(Scene(robot, right, E0), f.q, C @ f.E_true, rng, **kw)
+        px, mk = o.pixels, o.markers
         right_obs.append(Observation("line-intensities", pixels=px, markers=mk))
     mono = _run_batch(TrackingContext(robot, cam, E0), frames, [None] * len(frames))
     stereo = _run_batch(TrackingContext(robot, cam, E0, right, C), frames, right_obs)

@@ -5,12 +5,30 @@ import pytest
 from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS, Observation
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.particle_filter import ParticleFilter
-from graphtrack.estimate.pf.synthetic import make_scene
+from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
+
+X_TRUE = np.r_[0.003, 0.0, 0.0, 0.0, np.radians(2.0), 0.0]   # hand-eye error (m, rad)
+Q = joint_trajectory(91)
+
+
+class World:
+    """The synthetic world seen through E_true = Exp(X_TRUE) E_0 (markers as points)."""
+
+    def __init__(self):
+        s = make_scene()
+        self.ctx, self.x_true, self.E_true = s.ctx, X_TRUE, s.true_E(X_TRUE)
+        self.scene = s
+
+    def joints(self, t):
+        return Q[t]
+
+    def observation(self, q, model, rng, markers=True, **kw):
+        return observe(self.scene, q, self.E_true, rng, marker_model="point", **kw).observation(model, markers)
 
 
 @pytest.fixture(scope="module")
 def scene():
-    return make_scene()
+    return World()
 
 
 def perturbed(x_true):

@@ -32,7 +32,7 @@ E_t = [R b; 0 1] . E_0. ``Estimate.std``/``cov``: weighted covariance of x.
 
 Defaults. The dVRK tracker's motion model (2.5e-5 m, 1e-4 rad per frame)
 is kept; its initial spread (1e-3 m, 1e-2 rad) and its lack of roughening are
-not. Measured on graphtrack.estimate.pf.synthetic (hand-eye error 3 mm / 2 deg
+not. Measured on a synthetic PSM scene (f = 1000 px; hand-eye error 3 mm / 2 deg
 in a random direction, noisy lines/pixels/markers, the true E drifting by a
 random walk of the motion model's size, 200 frames, 3 seeds; error of
 E_est E_true^-1, mean over the last 50 frames):

@@ -25,7 +25,6 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import POLAR_MODELS, Observation
 from graphtrack.estimate.graph import left_error
 from graphtrack.io.context import TrackingContext
@@ -54,26 +53,27 @@ def nees_band(runs: int, dof: int = 6, level: float = 0.95) -> tuple[float, floa
     return float(lo), float(hi)
 
 
-def monte_carlo_nees(make, runs: int = 200, first: int = 60, last: int = 200, seed: int = 0,
+def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int = 200, seed: int = 0,
                      prior_std=None, walk_sigma=(2.5e-5, 1e-4), model: str = "line-intensities",
                      progress: bool = False, **observe_kw) -> NeesResult:
     """Monte-Carlo NEES of the estimators built by ``make(ctx)`` (a fresh one per run).
 
-    Run r: a synthetic sequence (:func:`factors.synthetic.sequence`) with seed
-    ``seed + 1 + r``, the sequence's default hand-eye error (4.1 mm / 1.6 deg)
+    Run r: ``sequence(n, seed=..., walk_sigma=..., **observe_kw)`` -> (robot,
+    camera, E0, frames), the synthetic world's
+    (:func:`graphtrack.sim.synthetic.sequence`; passed in, as eval sits below
+    sim), with n = k_r + 1 and seed ``seed + 1 + r``, the sequence's default hand-eye error (4.1 mm / 1.6 deg)
     or, with ``prior_std`` = (m, rad), one drawn from N(0, diag(prior_std^2)),
     the true E following the random walk ``walk_sigma`` (m, rad per frame),
     observed with ``observe_kw`` (pixel_noise, marker_noise, pixels_per_edge,
     ...); scored at one frame k_r ~ U[first, last).
     """
-    scene = make_scene()
     pick = np.random.default_rng(seed)
     values = []
     for r in tqdm(range(runs), desc="NEES runs", disable=not progress, leave=False):
         k_r = int(pick.integers(first, last))
         if prior_std is not None:
             observe_kw["handeye_error"] = pick.standard_normal(6) * np.repeat(np.asarray(prior_std, float), 3)
-        robot, cam, E0, frames = sequence(k_r + 1, seed=seed + 1 + r, scene=scene,
+        robot, cam, E0, frames = sequence(k_r + 1, seed=seed + 1 + r,
                                           walk_sigma=walk_sigma, **observe_kw)
         est = make(TrackingContext(robot, cam, E0))
         for f in frames:

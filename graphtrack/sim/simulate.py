@@ -249,12 +249,13 @@ def _prepare_out(out: Path) -> None:
 
 def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
              compressed: bool = False, form: str = "bag", randomize: bool = False, progress: bool = True,
-             noise_free: bool = False, stereo: bool = False) -> Path:
+             noise_free: bool = False, stereo: bool = False, image_format: str = "png") -> Path:
     """Write a simulated recording into ``out_dir`` (sequence format + truth.csv) and return it.
 
     scene: "structured" | "tissue"; frames > 0; size = (H, W) px; form: "bag"
-    (one ROS 1 bag ``recording.bag``; ``compressed`` -> PNG CompressedImage) or
-    "folder" (frames/ + joints.csv). ``noise_free``: no hand-eye error, no
+    (one ROS 1 bag ``recording.bag``; ``compressed`` -> CompressedImage) or
+    "folder" (frames/ + joints.csv). image_format: "png" (lossless) or "jpeg" (OpenCV's
+    quality 95, a tenth of the size) for the folder's files and compressed bag images. ``noise_free``: no hand-eye error, no
     joint noise, no sensor noise/blur/flap (for geometry tests). ``stereo``: also
     the right images (``/stereo/right/image[/compressed]`` or frames_right/), K2, D2,
     R, T in camera_calibration.yaml and labels_right.csv. ``randomize``: also
@@ -264,6 +265,8 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
     from graphtrack.io.handeye import save_handeye
     from graphtrack.io.labels import write_labels
 
+    if image_format not in ("png", "jpeg"):
+        raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
     sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
@@ -284,11 +287,11 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
         if form == "bag":
             from graphtrack.io.bag_write import write_bag
 
-            write_bag(out / "recording.bag", it, compressed=compressed, image_format="png")
+            write_bag(out / "recording.bag", it, compressed=compressed, image_format=image_format)
         else:
             from graphtrack.io.folder import write_folder
 
-            write_folder(out, it)
+            write_folder(out, it, image_ext="jpg" if image_format == "jpeg" else "png")
     write_labels(out / "labels.csv", labels)
     if labels_right is not None:
         write_labels(out / "labels_right.csv", labels_right)
