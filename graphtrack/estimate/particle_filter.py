@@ -131,6 +131,7 @@ class ParticleFilter:
         self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
+        self._buffers_right: dict = {}   # the right image's pixel buffers (its own sizes)
         self._geometry_cache = None
         self.reset()
 
@@ -170,8 +171,13 @@ class ParticleFilter:
             self._geometry_cache = (key, frame_geometry(self.robot, q, self.E0))
         return self._geometry_cache[1]
 
-    def _project(self, q: np.ndarray, x: np.ndarray | None = None) -> Hypotheses:
+    def _project(self, q: np.ndarray, x: np.ndarray | None = None, right: bool = False,
+                 R: np.ndarray | None = None) -> Hypotheses:
+        """Every particle's (or state x's) projection into the left image, or with
+        ``right`` into the stereo right one (:mod:`graphtrack.estimate.stereo`)."""
         x = self.x if x is None else np.atleast_2d(np.asarray(x, float))
+        if right:
+            return project(self._frame_geometry(q), self.ctx.right.K, x, self.ctx.right_T_left, R)
         return project(self._frame_geometry(q), self.K, x)
 
     def hypotheses(self, q: np.ndarray, x: np.ndarray | None = None) -> dict:
@@ -194,18 +200,32 @@ class ParticleFilter:
         return np.stack([h["rho"][0], h["theta"][0]], -1)
 
     # -- the filter step --------------------------------------------------------------
-    def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None) -> np.ndarray:
-        """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x)."""
-        return self._loglik(self._project(q, x), observation)
+    def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None,
+                       right=None) -> np.ndarray:
+        """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x);
+        with the right image's observation ``right`` (stereo context) the sum of both
+        images' terms (:mod:`graphtrack.estimate.stereo`)."""
+        h = self._project(q, x)
+        return self._loglik(h, observation) + self._loglik_right(q, x, h, right)
 
-    def _loglik(self, h: Hypotheses, observation) -> np.ndarray:
+    def _loglik_right(self, q, x, h: Hypotheses, right) -> np.ndarray | float:
+        """The right image's term log P(z_right | right_T_left . E(x_n)), 0 without one."""
+        if right is None or not self.ctx.stereo or not self._informative(right):
+            return 0.0
+        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right)
+
+    def _informative(self, observation) -> bool:
+        return observation is not None and (observation.has_shaft
+                                            or (self.use_markers and len(observation.markers) > 0))
+
+    def _loglik(self, h: Hypotheses, observation, buffers: dict | None = None) -> np.ndarray:
         n = len(h.valid)
         ll = np.zeros(n)
         if observation is None:
             return ll
         if observation.has_shaft:
             ll += om.shaft_loglik(observation, h.rho.T, lambda: h.theta.T, h.valid,
-                                  _buffers=self._buffers, cos_sin=(h.cos.T, h.sin.T),
+                                  _buffers=self._buffers if buffers is None else buffers, cos_sin=(h.cos.T, h.sin.T),
                                   **self.shaft_options)
         if self.use_markers and len(observation.markers):
             ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers,
@@ -214,16 +234,15 @@ class ParticleFilter:
                                       **self.marker_options)
         return ll
 
-    def step(self, frame: Frame, observation=None) -> Estimate:
+    def step(self, frame: Frame, observation=None, right=None) -> Estimate:
         q = frame.q
         if self.t > 0:
             self.predict()
         self.t += 1
         h = self._project(q)
-        informative = observation is not None and (
-            observation.has_shaft or (self.use_markers and len(observation.markers)))
-        if informative:
-            self.logw = normalize_log_weights(self.logw + self._loglik(h, observation))
+        if self._informative(observation) or (right is not None and self._informative(right)):
+            self.logw = normalize_log_weights(self.logw + self._loglik(h, observation)
+                                              + self._loglik_right(q, None, h, right))
         w = np.exp(self.logw)
         ess = effective_sample_size(w)
         # estimate: weighted mean of b, chordal mean of R(w)

@@ -9,7 +9,8 @@ One gtsam.Pose3 E_t per frame (key x_t; y_t once settled, see below). Factors:
   x_t, identity) with left per-frame stds (motion_sigma_b, motion_sigma_w),
   the particle filter's Gaussian random walk;
 - the frame's detections (:func:`graphtrack.estimate.graph.frame_factors`):
-  shaft pixels / lines and markers, robust;
+  shaft pixels / lines and markers, robust; in stereo also the right image's
+  (:mod:`graphtrack.estimate.stereo`), on the same x_t;
 - pixel models: the edge-bias vector b_j shared by frames jn .. jn + n - 1
   (n = ``edge_bias_every``, key b_j), its prior at frame 0 and the
   Gauss-Markov transition from b_{j-1} (:mod:`factors.edge_bias`); the
@@ -88,8 +89,9 @@ from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
 from graphtrack.estimate.options import LAG_S, SMOOTHER
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
-from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
+from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussian_bw,
                                        key, left_from_right_cov, split_options)
+from graphtrack.estimate.stereo import stereo_factor_groups
 from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
 
 
@@ -225,7 +227,7 @@ class FixedLagSmootherEstimator:
         return pose
 
     # -- Estimator -------------------------------------------------------------------
-    def step(self, frame: Frame, observation) -> Estimate:
+    def step(self, frame: Frame, observation, right=None) -> Estimate:
         gtsam = self.gtsam
         t_start = time.perf_counter()
         self.k += 1
@@ -261,9 +263,9 @@ class FixedLagSmootherEstimator:
         else:
             graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
         self.prev_key = x
-        shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self.fopts, self.E0, pose_key=x,
-                                             line_bias=self.settled)
+        shaft, markers = stereo_factor_groups(k, frame.q, observation, right, self.ctx, self.K,
+                                              self.fopts, self.E0, pose_key=x,
+                                              line_bias=self.settled)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen

@@ -95,14 +95,25 @@ class Hypotheses:
         return self._theta
 
 
-def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray) -> Hypotheses:
-    """Project the frame's features for the particle states x (N, 6) = (b, w)."""
+def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray, extrinsic: np.ndarray | None = None,
+            R: np.ndarray | None = None) -> Hypotheses:
+    """Project the frame's features for the particle states x (N, 6) = (b, w).
+
+    ``extrinsic`` C = [Rc tc; 0 1] (4x4, metres; None: the left camera): project
+    through the camera C . E(x_n) instead (the stereo right camera, C = right_T_left,
+    K = K2): camera_X = Rc (R(w_n) E_0 X + b_n) + tc, one more (3, 3) x (3, K N)
+    product. ``R``: the particles' R(w) (3, 3, N) if already computed (the
+    returned ``R`` is R(w_n) either way)."""
     V, r, on_shaft = geometry.V, geometry.r, geometry.on_shaft
-    R = so3_exp_batch(x[:, 3:])
+    R = so3_exp_batch(x[:, 3:]) if R is None else R
     k = V.shape[1]
     # W[i, k, n] = sum_j R[i, j, n] V[j, k]: one GEMM, (3, 3, N) -> (3, K, N)
     W = np.matmul(V.T, R)
     b = np.ascontiguousarray(x[:, :3].T)  # (3, N)
+    if extrinsic is not None:
+        Rc, tc = np.asarray(extrinsic, float)[:3, :3], np.asarray(extrinsic, float)[:3, 3]
+        W = (Rc @ W.reshape(3, -1)).reshape(W.shape)
+        b = Rc @ b + tc[:, None]
     p0 = W[:, 0] + b
     rho, cos, sin, valid = project_cylinder_batch(p0, W[:, 1], r, K)
     M = len(on_shaft)
