@@ -150,14 +150,16 @@ class LineParameterError(PoseBiasErrorFunction):
 def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,
                           sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy",
                           pairing: LimbPairing | None = None, bias_key: int | None = None,
-                          direction: np.ndarray | None = None):
+                          direction: np.ndarray | None = None, extrinsic: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta);
+    ``extrinsic``: the observing camera from the left (:mod:`factors.error_function`);
     ``pairing``: the frame's :class:`factors.limb.LimbPairing` (None: nearer limb);
     with ``bias_key`` (the frame's edge-bias vector) on (key, bias_key), ``direction``
     the frame's reference direction of the shaft."""
     import gtsam
 
     fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta, pairing, bias_key is not None, direction)
+    fn.extrinsic = None if extrinsic is None else np.asarray(extrinsic, float)
     noise = make_kernel(kernel).gtsam_noise(gtsam.noiseModel.Diagonal.Sigmas(fn.sig))
     keys = [key] if bias_key is None else [key, bias_key]
     return gtsam.CustomFactor(noise, keys, fn)

@@ -170,9 +170,11 @@ class MarkerError(PoseErrorFunction):
 
 def marker_factor(key: int, detections: np.ndarray, points: np.ndarray, K: np.ndarray,
                   sigma: float = 2.0, gate: float = 20.0,
-                  kernel: RobustKernel | str | None = "cauchy", discs=None):
+                  kernel: RobustKernel | str | None = "cauchy", discs=None,
+                  extrinsic: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for a frame's marker detections (N, 2); None if
-    none. ``discs``: painted-disc samples and normals (see :class:`MarkerError`)."""
+    none. ``discs``: painted-disc samples and normals (see :class:`MarkerError`);
+    ``extrinsic``: the observing camera from the left (:mod:`factors.error_function`)."""
     import gtsam
 
     detections = np.asarray(detections, float).reshape(-1, 2)
@@ -180,4 +182,5 @@ def marker_factor(key: int, detections: np.ndarray, points: np.ndarray, K: np.nd
     if len(detections) == 0 or len(points) == 0:
         return None
     fn = MarkerError(detections, points, K, sigma, gate, kernel, discs)
+    fn.extrinsic = None if extrinsic is None else np.asarray(extrinsic, float)
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(fn.dim), [key], fn)

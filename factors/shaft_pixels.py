@@ -133,8 +133,11 @@ class ShaftPixelsError(PoseBiasErrorFunction):
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
                         sigma: float = 1.5, kernel: RobustKernel | str | None = "cauchy",
                         pairing: LimbPairing | None = None, weight: float = 1.0,
-                        bias_key: int | None = None, direction: np.ndarray | None = None):
+                        bias_key: int | None = None, direction: np.ndarray | None = None,
+                        extrinsic: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one edge's pixels (m, 2); None if empty.
+    ``extrinsic``: the observing camera from the left (stereo right: right_T_left,
+    with K the right camera's), :mod:`factors.error_function`.
     With ``bias_key`` (the frame's edge-bias vector) the factor is on (key, bias_key);
     ``direction``: the frame's reference direction of the shaft for the slope terms.
 
@@ -149,5 +152,6 @@ def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.nda
         return None
     fn = ShaftPixelsError(pixels, axis, K, sigma, kernel, pairing, weight, bias=bias_key is not None,
                           direction=direction)
+    fn.extrinsic = None if extrinsic is None else np.asarray(extrinsic, float)
     keys = [key] if bias_key is None else [key, bias_key]
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(len(pixels)), keys, fn)

@@ -27,6 +27,7 @@ from graphtrack.estimate.options import EstimatorOptions
 from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
 from graphtrack.eval.overlay import OverlayWriter
 from graphtrack.eval.robustness import no_detection_stretches
+from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.io.run_output import write_json
@@ -48,7 +49,8 @@ class TrackOptions:
     the observation model (:data:`graphtrack.detect.base.OBSERVATION_MODELS`);
     seed: of the observation's RANSAC draws (the estimator's own is in
     ``estimation``; the CLI and the studies set both from one seed); tip_feature:
-    a point feature to evaluate instead of robot.json's tool_tip.
+    a point feature to evaluate instead of robot.json's tool_tip; stereo: use the
+    right image too when the recording has one (False: ``--mono``, left only).
     """
 
     estimator: str = ESTIMATOR
@@ -57,6 +59,7 @@ class TrackOptions:
     estimation: EstimatorOptions = field(default_factory=EstimatorOptions)
     seed: int = 0
     tip_feature: str | None = None
+    stereo: bool = True
 
 
 #: the widest association gate (px at full size), see Pipeline.gate
@@ -75,6 +78,15 @@ class Pipeline:
     ``step(frame)`` returns (Estimate, Detection | None, Observation | None,
     per-stage milliseconds). The detector is gated with the shaft edges
     predicted from the previous estimate and the current joint readings.
+
+    Stereo (``ctx.stereo``): the right image is undistorted and detected too, gated
+    with the shaft predicted through the right camera (right_T_left . E, K2) and the
+    left image's gate widths, and its observation goes to the estimator as
+    ``right``; its (Detection, Observation) are kept in ``right`` (both None for a
+    left-only frame), the per-stage milliseconds are those of both images. A frame
+    whose right image is missing or corrupt is a left-only update, counted in
+    ``left_only``. (The learned detector runs each image through the net on its own:
+    one forward pass of both was slower, docs/decisions/stereo-detection.md.)
     """
 
     def __init__(self, ctx: TrackingContext, options: TrackOptions):
@@ -83,6 +95,11 @@ class Pipeline:
         det = options.detection
         self.scale = det.scale or auto_detect_scale(ctx.camera.width)
         self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
+        self.stereo = bool(ctx.stereo)
+        self.detect_right = None if not self.stereo else (
+            ctx.right if self.scale == 1.0 else ctx.right.scaled(self.scale))
+        self.right = (None, None)     # the last frame's right (Detection, Observation)
+        self.left_only = 0            # stereo frames updated without their right image
         cls = estimator_class(options.estimator)
         self.needs_images = cls.uses_observations
         kw = options.estimation.keywords(options.estimator)
@@ -98,12 +115,16 @@ class Pipeline:
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
         self.rng = np.random.default_rng(options.seed)
 
-    def predicted_lines(self, frame: Frame) -> np.ndarray | None:
+    def predicted_lines(self, frame: Frame, right: bool = False) -> np.ndarray | None:
         """Shaft edges (2, 2) (rho, theta) from the last estimate and this frame's
-        readings, in the undistorted pixels of the (possibly scaled) detection image."""
+        readings, in the undistorted pixels of the (possibly scaled) detection image
+        (``right``: of the right image, through right_T_left . E and K2)."""
         if not self.ctx.robot.shaft_features:
             return None
-        rho, theta, valid = shaft_lines(self._predicted_features(frame), self.detect_camera.K)
+        feats, K = self._predicted_features(frame), self.detect_camera.K
+        if right:
+            feats, K = feats.transformed(self.ctx.right_T_left), self.detect_right.K
+        rho, theta, valid = shaft_lines(feats, K)
         return np.stack([rho, theta], -1) if bool(valid) else None
 
     def _predicted_features(self, frame: Frame):
@@ -123,8 +144,7 @@ class Pipeline:
         standard deviations of the last estimate (Z: depth of the shaft point, f
         in detection pixels); the offset gate is max(configured, 3 s), at most
         ``MAX_GATE_PX``. Before the first estimate (nothing known yet) it is
-        MAX_GATE_PX. A fixed 40 px gate at a start-up 42 px off kept a
-        tuning recording's true edges out for 8 frames.
+        MAX_GATE_PX. Why: docs/decisions/gate-follows-covariance.md.
         """
         if self.detector is None or not self.ctx.robot.shaft_features:
             return None
@@ -145,38 +165,56 @@ class Pipeline:
             return None
         return dataclasses.replace(base, max_offset=float(widest))
 
+    def _image(self, image: np.ndarray, camera, lines, gate, ms: dict):
+        """Undistort, detect and observe one image; (Detection, Observation) in
+        full-size pixels; adds the stages' milliseconds to ``ms``."""
+        det = self.options.detection
+        t = time.perf_counter()
+        und = camera.undistort(image, self.scale)
+        ms["undistort"] = ms.get("undistort", 0.0) + 1e3 * (time.perf_counter() - t)
+        t = time.perf_counter()
+        detection = self.detector.detect(und, lines, gate)
+        ms["detect"] = ms.get("detect", 0.0) + 1e3 * (time.perf_counter() - t)
+        t = time.perf_counter()
+        observation = observe.make_observation(detection, self.options.observation, alpha=det.alpha,
+                                               beta=det.beta, use_markers=det.markers, rng=self.rng)
+        observation = observe.scale_observation(observation, 1.0 / self.scale)  # full-size pixels
+        detection = observe.scale_detection(detection, 1.0 / self.scale)
+        ms["observe"] = ms.get("observe", 0.0) + 1e3 * (time.perf_counter() - t)
+        return detection, observation
+
     def step(self, frame: Frame):
         ms = {}
         detection = observation = None
+        self.right = (None, None)
         if self.needs_images:
-            det = self.options.detection
-            t = time.perf_counter()
-            und = self.ctx.camera.undistort(frame.image, self.scale)
-            ms["undistort"] = 1e3 * (time.perf_counter() - t)
-            t = time.perf_counter()
-            detection = self.detector.detect(und, self.predicted_lines(frame), self.gate(frame))
-            ms["detect"] = 1e3 * (time.perf_counter() - t)
-            t = time.perf_counter()
-            observation = observe.make_observation(detection, self.options.observation, alpha=det.alpha,
-                                                   beta=det.beta, use_markers=det.markers, rng=self.rng)
-            observation = observe.scale_observation(observation, 1.0 / self.scale)  # full-size pixels
-            detection = observe.scale_detection(detection, 1.0 / self.scale)
-            ms["observe"] = 1e3 * (time.perf_counter() - t)
+            gate = self.gate(frame)
+            detection, observation = self._image(frame.image, self.ctx.camera, self.predicted_lines(frame),
+                                                 gate, ms)
+            if self.stereo and frame.image_right is not None:
+                self.right = self._image(frame.image_right, self.ctx.right,
+                                         self.predicted_lines(frame, right=True), gate, ms)
+            elif self.stereo:
+                self.left_only += 1
         t = time.perf_counter()
-        estimate = self.estimator.step(frame, observation)
+        estimate = (self.estimator.step(frame, observation, self.right[1]) if self.stereo
+                    else self.estimator.step(frame, observation))
         ms["estimate"] = 1e3 * (time.perf_counter() - t)
         self.last_E = estimate.E
         self.last_std = None if estimate.std is None else np.asarray(estimate.std, float)
         return estimate, detection, observation, ms
 
 
+def tip_point(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """The tool tip in the LEFT camera frame, E . tip(q), (3,) m (NaN if the robot has none)."""
+    feats = base_features(ctx.robot, q)
+    return np.full(3, np.nan) if feats.tip is None else np.asarray(feats.transformed(E).tip, float)
+
+
 def tip_pixel(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
     """The tool tip projected into the RAW (distorted) left image, (2,) px (NaN if none/behind)."""
-    feats = base_features(ctx.robot, q)
-    if feats.tip is None:
-        return np.full(2, np.nan)
-    tip = feats.transformed(E).tip
-    if tip[2] <= 0:
+    tip = tip_point(ctx, q, E)
+    if not tip[2] > 0:
         return np.full(2, np.nan)
     return ctx.camera.project_raw(tip)
 
@@ -208,7 +246,10 @@ def _open(path: str | Path, options: TrackOptions, quiet: bool,
     for w in rec.warnings:
         _warn(f"warning: {w}", quiet)
     rec.robot = _evaluated_tip(rec, options.tip_feature)
-    return rec, TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
+    cal = rec.calibration
+    if options.stereo and rec.stereo:
+        return rec, TrackingContext(rec.robot, cal.left, rec.handeye, cal.right, cal.right_T_left)
+    return rec, TrackingContext(rec.robot, cal.left, rec.handeye)
 
 
 def _warn(message: str, quiet: bool) -> None:
@@ -305,10 +346,11 @@ def _refine(pipe: Pipeline, run: _Run, writer: TrajectoryWriter, extra: list[str
     if refined is None:
         return
     run.tips, rows = [], []
-    for (fi, stamp, q, ms, E0), est in zip(run.rows, refined):
+    for i, ((fi, stamp, q, ms, E0), est) in enumerate(zip(run.rows, refined)):
         E = est.E if np.all(np.isfinite(est.E)) else E0   # a non-finite refinement keeps the streamed pose
         tip = tip_pixel(pipe.ctx, q, E)
         run.tips.append(tip)
+        run.rows[i] = (fi, stamp, q, ms, E)
         rows.append((fi, stamp, E, tip, ms, _extras(est, extra)))
     writer.rewrite_all(rows)
 
@@ -327,7 +369,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
-    overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels) if video else None
+    overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels,
+                            labels_right=rec.labels_right) if video else None
     run = _Run()
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
     bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
@@ -352,7 +395,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             total_ms = t_decode + sum(ms.values())
             writer.write(frame.index, frame.stamp, est.E, tip, total_ms, _extras(est, extra))
             if overlay is not None:
-                overlay.write(frame, est, det, obs, tip)
+                overlay.write(frame, est, det, obs, tip, pipe.right)
             ms["write"] = 1e3 * (time.perf_counter() - t)
             ms["decode"] = t_decode
             run.add(frame, est.E, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
@@ -363,7 +406,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         bar.close()
     if overlay is not None:
         overlay.close()
-    result = _result(path, out, options, rec, ctx, run)
+    result = _result(path, out, options, rec, ctx, run, pipe.left_only)
     result.update(run.summary(wall))
     if pipe.needs_images:
         result["no_detection_stretches"] = stretches = no_detection_stretches(run.frames, run.informative)
@@ -374,15 +417,23 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     return result
 
 
-def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, run: _Run) -> dict:
-    """metrics.json's run description, skip counts, tip metrics (labels.csv) and truth metrics (truth.csv)."""
+def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, run: _Run,
+            left_only: int = 0) -> dict:
+    """metrics.json's run description, skip counts, tip metrics (labels.csv; with
+    labels_right.csv the right-image and triangulated 3-D ones) and truth metrics (truth.csv)."""
     result = {"estimator": options.estimator, "observation": options.observation,
               "detector": options.detection.detector, "frames_tracked": len(run.frames),
               "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values())),
               "frames_total": run.read, "skip_examples": run.skipped.examples}
+    if rec.stereo:
+        result.update(stereo=bool(ctx.stereo), frames_left_only=int(left_only),
+                      right_skipped_reasons={k: int(v) for k, v in rec.right_skips.items()})
     if rec.labels is not None:
         tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
         result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))
+    if rec.labels_right and rec.calibration.stereo:
+        tips_3d = np.array([tip_point(ctx, r[2], r[4]) for r in run.rows]).reshape(-1, 3)
+        result.update(stereo_tip_metrics(rec.calibration, run.frames, tips_3d, rec.labels, rec.labels_right))
     result.update(evaluate_against_truth(path, out, rec.robot, {r[0]: r[2] for r in run.rows}))
     return result
 

@@ -1,15 +1,15 @@
 """Robust online tracking (issue #18): the motion prior through a stretch without
 detections, covariance-following marker gates, and the divergence monitor's
 false-alarm rate and detection delay, on the synthetic observation world
-(graphtrack.estimate.pf.synthetic: observations from the true geometry)."""
+(graphtrack.sim.synthetic through tests/robust_world.py: observations from the true geometry)."""
 import numpy as np
 import pytest
 
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.divergence import NOMINAL_FALSE_ALARM_RATE, DivergenceMonitor
-from graphtrack.estimate.gating import CEIL_PX, FLOOR_PX, marker_gate
-from graphtrack.estimate.pf.synthetic import make_scene
+from graphtrack.estimate.gating import CEIL_PX, marker_gate
+from robust_world import make_world as make_scene
 from graphtrack.estimate.startup import Scorer
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.geometry.se3 import bw_to_matrix
@@ -84,8 +84,9 @@ def test_marker_gate_follows_the_covariance():
     # unusable covariance: the configured gate
     assert marker_gate(points, K, None, configured, 2.0) == configured
     assert marker_gate(points, K, np.full((6, 6), np.nan), configured, 2.0) == configured
-    # confident: the floor; very uncertain: the ceiling (detection pixels x scale)
-    assert marker_gate(points, K, np.eye(6) * 1e-14, configured, 2.0, scale=2.0) == pytest.approx(2 * FLOOR_PX)
+    # confident: the configured gate (or a floor given); very uncertain: the ceiling (detection px x scale)
+    assert marker_gate(points, K, np.eye(6) * 1e-14, configured, 2.0, scale=2.0) == configured
+    assert marker_gate(points, K, np.eye(6) * 1e-14, configured, 2.0, scale=2.0, floor=20) == pytest.approx(40)
     assert marker_gate(points, K, np.eye(6) * 1e-2, configured, 2.0, scale=2.0) == pytest.approx(2 * CEIL_PX)
     # in between it matches the Monte-Carlo spread of the predicted markers and grows with C
     C = np.diag([1.5e-3] * 3 + [0.01] * 3) ** 2
@@ -94,16 +95,33 @@ def test_marker_gate_follows_the_covariance():
     assert marker_gate(points, K, 4 * C, configured, 2.0, floor=0, ceil=1e9) > 1.8 * g
 
 
-def test_pf_marker_gate_shrinks_as_it_converges():
+@pytest.mark.parametrize("name", ["pf", "smoother"])
+def test_marker_gate_widens_after_a_gap_and_returns_as_it_converges(name):
+    """With marker_gate_follows_covariance the estimators' gate follows their
+    covariance: wide while uncertain (the PF's initial cloud), back to the configured
+    gate once confident, never below it."""
     scene = make_scene(seed=2, b_mm=3.0, w_deg=1.5)
-    pf = make_estimator("pf", scene.ctx, particles=400)
+    est = make_estimator(name, scene.ctx, search=False, marker_gate_follows_covariance=True,
+                         **({"particles": 400} if name == "pf" else {}))
+    configured = est.configured_gate if name == "pf" else est.fopts.marker_gate * est.fopts.gate_scale
+
+    def gate(q, obs):
+        if name == "pf":
+            est._gate_markers(q)
+            return est.marker_gate
+        o = est._gated_options(q, obs)
+        return o.marker_gate * o.gate_scale
+
     gates = []
-    for t in range(25):
+    for t in range(40):
         q = scene.joints(t)
-        pf.step(Frame(t, t / 30.0, None, q[:6], q[6]),
-                scene.observation(q, MODEL, np.random.default_rng(t), pixel_noise=0.5, outliers=0.02))
-        gates.append(pf.marker_gate)
-    assert gates[-1] < gates[0] and gates[-1] < pf.configured_gate, gates
+        obs = scene.observation(q, MODEL, np.random.default_rng(t), pixel_noise=0.5, outliers=0.02)
+        gates.append(gate(q, obs))
+        est.step(Frame(t, t / 30.0, None, q[:6], q[6]), obs)
+    assert min(gates) >= configured
+    assert gates[-1] == pytest.approx(configured)          # confident
+    if name == "pf":
+        assert gates[0] > configured                       # the initial cloud
 
 
 def _monitor_run(scene, x_of_t, frames, seed, pixel_noise=1.0, outliers=0.05):

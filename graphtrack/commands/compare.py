@@ -10,6 +10,7 @@ from graphtrack.detect.options import DetectionOptions
 from graphtrack.errors import InputError
 from graphtrack.estimate import ESTIMATORS
 from graphtrack.study import StudyOptions, format_table, run_study
+from graphtrack.study.cells import VIEWS
 
 
 def _list(value: str, allowed, what: str) -> list[str]:
@@ -34,7 +35,8 @@ def study_options_from_args(args) -> StudyOptions:
     return StudyOptions(estimators=_list(args.estimators, tuple(ESTIMATORS), "estimators"),
                         observations=_list(args.observations, OBSERVATION_MODELS, "observations"),
                         detection=detection, estimation=estimator_options_from_args(args), seed=args.seed,
-                        max_frames=args.max_frames, repeats=args.repeats)
+                        max_frames=args.max_frames, repeats=args.repeats,
+                        views="mono" if args.mono else args.stereo)
 
 
 def run(args) -> int:
@@ -78,5 +80,9 @@ def add_parser(sub):
                         "with seeds SEED..SEED+N-1 and report their mean")
     p.add_argument("--max-frames", type=int, default=StudyOptions.max_frames, metavar="N",
                    help="frames per recording (None: all)")
+    p.add_argument("--stereo", choices=VIEWS, default=StudyOptions.views,
+                   help="the mono / stereo axis: stereo (both images where a recording has a right one), "
+                        "mono (left only), both (every cell twice; the mono rows read 'ESTIMATOR (mono)')")
+    p.add_argument("--mono", action="store_true", help="left image only (the same as --stereo mono)")
     p.add_argument("--quiet", action="store_true", help="no progress bar; only the table")
     p.set_defaults(func=run)

@@ -44,15 +44,46 @@ def _num(x) -> str:
     return repr(round(x, 4)) if np.isfinite(x) else "nan"
 
 
+def _predicted(rec, q, E: np.ndarray, K: np.ndarray):
+    """The shaft edges (2, 2) predicted through camera-from-base E and K (None: unknown)."""
+    if len(q) != rec.robot.n_joints or not np.all(np.isfinite(q)) or not rec.robot.shaft_features:
+        return None
+    rho, theta, valid = shaft_lines(base_features(rec.robot, q).transformed(E), K)
+    return np.stack([rho, theta], -1) if bool(valid) else None
+
+
+def _row(index: int, d, shape, alpha: float, beta: float, ms: float) -> list:
+    """One detections.csv row of Detection d on an image of ``shape``."""
+    row = [index, len(d.segments), len(d.shaft_lines)]
+    segs = np.asarray(d.shaft_segments, float).reshape(-1, 4)
+    lines = np.asarray(d.shaft_lines, float).reshape(-1, 2)
+    for i in range(2):
+        if i < len(lines):
+            seg = segs[i] if i < len(segs) else np.full(4, np.nan)
+            ee = len(endpoints_set(d.heatmap, seg, alpha, beta, shape)) if np.all(np.isfinite(seg)) else 0
+            el = len(line_set(d.heatmap, seg, alpha, beta, shape)) if np.all(np.isfinite(seg)) else 0
+            row += [_num(lines[i, 0]), _num(lines[i, 1])] + [_num(v) for v in seg] + [ee, el]
+        else:
+            row += ["nan"] * 6 + [0, 0]
+    mk = np.asarray(d.markers, float).reshape(-1, 2)
+    return row + [len(mk), ";".join(f"{x:.2f} {y:.2f}" for x, y in mk), _num(ms)]
+
+
 def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), video: bool = False,
                      max_frames: int | None = None, quiet: bool = False,
-                     topics: TopicSelection = TopicSelection()) -> dict:
+                     topics: TopicSelection = TopicSelection(), stereo: bool = True) -> dict:
     """Detect on every frame of a recording; write detections.csv (and detections.mp4).
     Of ``options`` it uses detector, weights, alpha and beta (at full size); ``topics``:
-    the arm and bag topics to read (default: detected)."""
+    the arm and bag topics to read (default: detected). A stereo recording (unless
+    ``stereo`` is False, ``--mono``) also gets detections_right.csv, the same columns
+    for the right images (undistorted right pixels, gated through right_T_left . E_0)."""
     rec = open_recording(path, topics=topics)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(out)
+    right_csv = None
+    if stereo and rec.stereo:
+        right_csv = (out / "detections_right.csv").open("w", newline="")
+        E_right = rec.calibration.right_T_left @ rec.handeye
     detector, alpha, beta = options.detector, options.alpha, options.beta
     det = make_detector(detector, **options.detector_keywords())
     writer = None
@@ -69,6 +100,9 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             tqdm(total=total, desc=f"detect {detector}", unit="frame", file=sys.stderr, disable=quiet) as bar:
         w = csv.writer(f, lineterminator="\n")
         w.writerow(header)
+        wr = None if right_csv is None else csv.writer(right_csv, lineterminator="\n")
+        if wr is not None:
+            wr.writerow(header)
         for item in rec.frames():
             if max_frames is not None and n >= max_frames:
                 break
@@ -78,37 +112,25 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
                 skipped += 1
                 continue
             und = ctx.camera.undistort(item.image)
-            pred = None
-            if len(item.q) == rec.robot.n_joints and np.all(np.isfinite(item.q)):
-                if rec.robot.shaft_features:
-                    cam = base_features(rec.robot, item.q).transformed(ctx.handeye)
-                    rho, theta, valid = shaft_lines(cam, ctx.camera.K)
-                    pred = np.stack([rho, theta], -1) if bool(valid) else None
             t = time.perf_counter()
-            d = det.detect(und, pred)
+            d = det.detect(und, _predicted(rec, item.q, ctx.handeye, ctx.camera.K))
             ms = d.ms if d.ms else 1e3 * (time.perf_counter() - t)
             ms_all.append(ms)
-            shape = und.shape[:2]
-            row = [item.index, len(d.segments), len(d.shaft_lines)]
-            segs = np.asarray(d.shaft_segments, float).reshape(-1, 4)
-            lines = np.asarray(d.shaft_lines, float).reshape(-1, 2)
-            for i in range(2):
-                if i < len(lines):
-                    seg = segs[i] if i < len(segs) else np.full(4, np.nan)
-                    ee = len(endpoints_set(d.heatmap, seg, alpha, beta, shape)) if np.all(np.isfinite(seg)) else 0
-                    el = len(line_set(d.heatmap, seg, alpha, beta, shape)) if np.all(np.isfinite(seg)) else 0
-                    row += [_num(lines[i, 0]), _num(lines[i, 1])] + [_num(v) for v in seg] + [ee, el]
-                else:
-                    row += ["nan"] * 6 + [0, 0]
-            mk = np.asarray(d.markers, float).reshape(-1, 2)
-            row += [len(mk), ";".join(f"{x:.2f} {y:.2f}" for x, y in mk), _num(ms)]
-            w.writerow(row)
+            w.writerow(_row(item.index, d, und.shape[:2], alpha, beta, ms))
             f.flush()
+            if wr is not None and item.image_right is not None:
+                und_r = rec.calibration.undistort_right(item.image_right)
+                t = time.perf_counter()
+                d_r = det.detect(und_r, _predicted(rec, item.q, E_right, rec.calibration.right.K))
+                wr.writerow(_row(item.index, d_r, und_r.shape[:2], alpha, beta,
+                                 d_r.ms if d_r.ms else 1e3 * (time.perf_counter() - t)))
             if writer is not None:
                 obs = make_observation(d, "line-intensities", alpha=alpha, beta=beta, use_markers=True)
                 writer.write(draw_detection(und, d, obs), item.stamp)
     if writer is not None:
         writer.close()
+    if right_csv is not None:
+        right_csv.close()
     return {"frames": n, "frames_skipped": skipped,
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
 
@@ -117,7 +139,8 @@ def run(args) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
-    res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet)
+    res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
+                           stereo=not args.mono)
     if not args.quiet:
         print(f"{res['frames']} frames ({res['frames_skipped']} skipped), detector median "
               f"{res['ms_median']:.1f} ms; wrote {args.out}/detections.csv"
@@ -135,4 +158,6 @@ def add_parser(sub):
     p.add_argument("--video", action="store_true", help="also write detections.mp4")
     p.add_argument("--max-frames", type=int, default=None, metavar="N", help="detect on at most N frames (None: all)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--mono", action="store_true",
+                   help="left images only (default: also detections_right.csv when the recording has right images)")
     p.set_defaults(func=run)

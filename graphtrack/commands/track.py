@@ -64,6 +64,7 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
     p.add_argument("--detect-scale", type=float, default=DetectionOptions.scale, metavar="S",
                    help="detect on the undistorted image scaled by S (None: auto, at most 960 px wide)")
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
+    add_mono_argument(p)
     add_estimator_arguments(p, particles=smoother_options, smoother=smoother_options)
     p.add_argument("--no-edge-bias", action="store_true",
                    help="smoother/batch: no edge-bias state (for edges or lines known to be unbiased)")
@@ -76,6 +77,11 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
     add_source_arguments(p)
     p.add_argument("--overwrite", action="store_true",
                    help="replace another run's files in --out (refused otherwise)")
+
+
+def add_mono_argument(p) -> None:
+    p.add_argument("--mono", action="store_true",
+                   help="left image only (default: both images whenever the recording has a right one)")
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
@@ -92,7 +98,7 @@ def options_from_args(args) -> TrackOptions:
                                  markers=not args.no_markers, scale=args.detect_scale).check()
     return TrackOptions(estimator=args.estimator, observation=args.observation, detection=detection,
                         estimation=estimator_options_from_args(args), seed=args.seed,
-                        tip_feature=args.tip_feature)
+                        tip_feature=args.tip_feature, stereo=not args.mono)
 
 
 def run(args) -> int:

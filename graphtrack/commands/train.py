@@ -24,8 +24,6 @@ from pathlib import Path
 import numpy as np
 
 from graphtrack.errors import InputError
-from graphtrack.training.data import generate
-from graphtrack.training.fit import jpeg_roundtrip, save, train
 
 
 def add_parser(sub):
@@ -51,9 +49,13 @@ def run(args) -> int:
         raise InputError("--epochs must be >= 0")
     if args.batch <= 0:
         raise InputError("--batch must be positive")
-    if args.device == "cuda":
-        import torch  # optional and heavy: imported when training
+    # lazy: training loads torch (seconds), and the CLI imports every command module to build its parser
+    import torch
 
+    from graphtrack.training.data import generate
+    from graphtrack.training.fit import jpeg_roundtrip, save, train
+
+    if args.device == "cuda":
         if not torch.cuda.is_available():
             raise InputError("--device cuda: no CUDA device available")
     out = Path(args.out)

@@ -5,7 +5,14 @@ tracking loop (:mod:`graphtrack.track`) undistorts, detects and builds an
 :class:`~graphtrack.detect.base.Observation`, then asks the estimator for the
 lumped error E_t:
 
-    est = estimator.step(frame, observation)     # -> Estimate
+    est = estimator.step(frame, observation, right)     # -> Estimate
+
+``right`` is the right image's Observation (undistorted RIGHT pixels, the right
+camera's K2) when the tracking context is stereo (``ctx.stereo``: the recording
+has a right camera and ``--mono`` was not given) and the frame's right image
+decoded; otherwise None, and the update is left-only. An estimator that uses
+observations scores both images' terms on the same E_t, the right camera's pose
+being ``ctx.right_T_left . E`` (:mod:`graphtrack.estimate.stereo`).
 
 Estimators never see ground truth (truth.csv, labels.csv).
 """
@@ -72,9 +79,11 @@ class Estimator(Protocol):
     supported_observations: ClassVar[tuple[str, ...]]
     extra_columns: ClassVar[tuple[str, ...]]
 
-    def step(self, frame: Frame, observation: Observation | None) -> Estimate:  # pragma: no cover - protocol
-        """Consume one frame and its observation (None: no images used; may be empty);
-        return E_t. The observation's ``model`` names its observation model."""
+    def step(self, frame: Frame, observation: Observation | None,
+             right: Observation | None = None) -> Estimate:  # pragma: no cover - protocol
+        """Consume one frame and its observation (None: no images used; may be empty)
+        and, in stereo, the right image's observation (None: left-only update);
+        return E_t. The observations' ``model`` names their observation model."""
         ...
 
     def finish(self) -> list[Estimate] | None:  # pragma: no cover - protocol

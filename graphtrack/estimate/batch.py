@@ -3,7 +3,8 @@
 Same graph as the online smoother (:mod:`graphtrack.estimate.smoother`):
 prior on frame 0 at E_0, a BetweenFactorPose3 between every pair of
 consecutive frames (always, so gaps in the detections stay solvable), each
-frame's robust detection factors, and the edge-bias vectors (one per
+frame's robust detection factors (both images' in stereo,
+:mod:`graphtrack.estimate.stereo`), and the edge-bias vectors (one per
 ``edge_bias_every`` frames; the pixel sets and the polar models' lines are on
 them from the first frame) with their Gauss-Markov chain
 (:mod:`factors.edge_bias`). ``step`` only records the frame's readings
@@ -38,8 +39,9 @@ from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
-from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factors, gaussian_bw, key,
+from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussian_bw, key,
                                        left_from_right_cov, split_options)
+from graphtrack.estimate.stereo import stereo_frame_factors
 from factors.edge_bias import BIAS_DIM, bias_key
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator
 
@@ -79,7 +81,7 @@ class BatchEstimator:
         self.fps = float(fps)
         self.bias = bool(self.fopts.edge_bias)   # pixel sets and polar lines alike
         self.every = self.fopts.edge_bias_period if self.bias else 1
-        self.frames: list[tuple[np.ndarray, object]] = []
+        self.frames: list[tuple[np.ndarray, object, object]] = []   # (q, left obs, right obs)
         self.stamps: list[float] = []
         self.initial: list[np.ndarray] = []
         self.online = None
@@ -91,11 +93,11 @@ class BatchEstimator:
                                                     fps=fps, **options)
         self.stats: dict[str, float] = {}
 
-    def step(self, frame: Frame, observation) -> Estimate:
-        self.frames.append((np.asarray(frame.q, float).copy(), observation))
+    def step(self, frame: Frame, observation, right=None) -> Estimate:
+        self.frames.append((np.asarray(frame.q, float).copy(), observation, right))
         self.stamps.append(monotone_stamp(frame.stamp, self.stamps[-1] if self.stamps else None, self.fps))
         if self.online is not None:
-            provisional = self.online.step(frame, observation)
+            provisional = self.online.step(frame, observation, right)
             self.initial.append(np.array(provisional.E, float))
             # with its std, which the tracking pipeline's detector gate reads (so the
             # provisional smoother always computes its marginals: ~0.3 ms per frame with
@@ -110,12 +112,12 @@ class BatchEstimator:
         gtsam = self.gtsam
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
-        for k, (q, obs) in enumerate(self.frames):
+        for k, (q, obs, right) in enumerate(self.frames):
             if k == 0:
                 graph.add(gtsam.PriorFactorPose3(key(0), gtsam.Pose3(self.E0), self.prior_noise))
             else:
                 graph.add(gtsam.BetweenFactorPose3(key(k - 1), key(k), gtsam.Pose3(), self.motion_noise))
-            for f in frame_factors(k, q, obs, self.ctx.robot, self.K, self.fopts, self.E0):
+            for f in stereo_frame_factors(k, q, obs, right, self.ctx, self.K, self.fopts, self.E0):
                 graph.add(f)
             values.insert(key(k), gtsam.Pose3(self.initial[k]))
             if self.bias and k % self.every == 0:     # the bias of frames k .. k + every - 1

@@ -11,17 +11,29 @@ marker's image covariance is P = J A C A^T J^T (px^2). The gate (px) is
 
 maximised over the markers in front of the camera (one gate per frame, as the
 association takes), with sigma (px) the detections' own noise, and clipped to
-[``floor``, ``ceil``]: it widens with the estimate's uncertainty (start-up, a
-long gap, a re-initialisation) and shrinks towards ``floor`` when the estimate
-is confident, so a stray blob near a well-tracked tool is not associated.
-Without a usable covariance (None, non-finite) the configured gate is kept.
+[configured gate, ``ceil``]: it widens with the estimate's uncertainty (a long
+gap, a re-initialisation, a wide particle cloud) and returns to the configured
+gate as the estimate becomes confident. It does not shrink below it: the
+estimators' covariances are over-confident exactly when the lock is wrong (a
+start-up LM on the shaft alone leaves E 12 mm off with a tight marginal), and
+markers 100+ px off are what pulls them back (docs/decisions/marker-gate.md;
+a 20 px floor left the smoother 16 mm off on a 16 mm start, the PF 0.6 mm
+instead of 0.2 mm after a hidden stretch). Without a usable covariance (None,
+non-finite) the configured gate is kept.
+
+Off by default in both estimators (``marker_gate_follows_covariance``): widening
+is harmful too. After the smoother's shaft-only start-up its marginal spans
+150 px of marker motion, the Hungarian association in that gate pairs markers
+100+ px off wrongly, and a 16 mm start ended 18.8 mm off instead of 1.05 mm
+(tests/test_smoother_synthetic.py, seed 86); the fixed, tuned gate excludes
+them until the shaft has converged. In the particle filter the gate is the cap
+of the robust marker cost, part of its tuned likelihood.
 """
 from __future__ import annotations
 
 import numpy as np
 
 N_SIGMA = 3.0          #: gate half-width in standard deviations of the predicted marker
-FLOOR_PX = 20.0        #: narrowest gate (detection pixels; the paper's fixed gate)
 CEIL_PX = 150.0        #: widest gate (detection pixels)
 
 
@@ -46,14 +58,15 @@ def marker_image_covariances(points: np.ndarray, K: np.ndarray, cov: np.ndarray)
 
 def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate: float,
                 sigma: float, scale: float = 1.0, n_sigma: float = N_SIGMA,
-                floor: float = FLOOR_PX, ceil: float = CEIL_PX) -> float:
+                floor: float | None = None, ceil: float = CEIL_PX) -> float:
     """The gate (px, full size) of the module doc.
 
     points (M, 3): marker points in the camera frame at the current estimate (m);
     K: intrinsics (full-size px); cov: (6, 6) left (b, w) covariance or None;
     gate: the configured gate (full-size px), returned when cov is unusable or no
     marker is in front of the camera; sigma: detection noise (px); scale: full-size
-    pixels per detection pixel (floor and ceil are in detection pixels).
+    pixels per detection pixel; floor (default: the configured gate) and ceil in
+    detection pixels.
     """
     X = np.asarray(points, float).reshape(-1, 3)
     X = X[np.all(np.isfinite(X), axis=1) & (X[:, 2] > 1e-3)] if len(X) else X
@@ -62,4 +75,5 @@ def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate:
     P = marker_image_covariances(X, K, cov)
     lam = np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, 1, 2)))[:, -1]
     g = n_sigma * np.sqrt(np.max(np.clip(lam, 0.0, None)) + sigma ** 2)
-    return float(np.clip(g, floor * scale, ceil * scale))
+    lo = float(gate) if floor is None else floor * scale
+    return float(np.clip(g, lo, max(lo, ceil * scale)))

@@ -241,7 +241,7 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
                         opts: FactorOptions,
                         E_ref: np.ndarray | None = None, pose_key: int | None = None,
-                        line_bias: bool = True) -> tuple[list, list]:
+                        line_bias: bool = True, extrinsic: np.ndarray | None = None) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
@@ -254,6 +254,10 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     ``line_bias``: with the edge-bias state, whether the detected lines of the polar
     models are on it (the smoother holds them off it until its start-up has
     settled, :mod:`graphtrack.estimate.smoother`); the pixel sets always are.
+    ``extrinsic``: the observing camera from the left one (the stereo right camera:
+    right_T_left, with K its K2, E_ref its camera's right_T_left . E_0;
+    :mod:`factors.error_function`). Its edges are on the same edge-bias vector as the
+    left image's (:mod:`graphtrack.estimate.stereo` says why).
     """
     if observation is None:
         return [], []
@@ -279,7 +283,8 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
             lb = b if line_bias else None
             for line in lines:
                 out.append(line_parameter_factor(x, line, axis, K, opts.line_sigma_rho,
-                                                 opts.line_sigma_theta, kern, pairing, lb, direction))
+                                                 opts.line_sigma_theta, kern, pairing, lb, direction,
+                                                 extrinsic))
         else:
             sets = [np.asarray(px, float).reshape(-1, 2) for px in observation.pixels]
             sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]
@@ -291,7 +296,8 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                 w = 1.0
                 if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
                     w = opts.pixel_effective_count / len(px)  # the m pixels count as n_eff
-                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w, b, direction)
+                f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w, b, direction,
+                                        extrinsic)
                 if f is not None:
                     out.append(f)
     if want_markers and len(F.points):
@@ -299,7 +305,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
         mk = mk[np.all(np.isfinite(mk), axis=1)]
         discs = marker_discs(robot, F) if opts.marker_discs else None
         f = marker_factor(x, mk, F.points, K, opts.marker_sigma, opts.marker_gate * opts.gate_scale, kern,
-                          discs)
+                          discs, extrinsic)
         if f is not None:
             return out, [f]
     return out, []

@@ -18,7 +18,7 @@ class KinematicsEstimator:
     def __init__(self, ctx: TrackingContext):
         self.E0 = ctx.handeye.copy()
 
-    def step(self, frame: Frame, observation=None) -> Estimate:
+    def step(self, frame: Frame, observation=None, right=None) -> Estimate:
         return Estimate(self.E0.copy())
 
     def finish(self):

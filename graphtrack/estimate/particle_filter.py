@@ -32,7 +32,7 @@ E_t = [R b; 0 1] . E_0. ``Estimate.std``/``cov``: weighted covariance of x.
 
 Defaults. The dVRK tracker's motion model (2.5e-5 m, 1e-4 rad per frame)
 is kept; its initial spread (1e-3 m, 1e-2 rad) and its lack of roughening are
-not. Measured on graphtrack.estimate.pf.synthetic (hand-eye error 3 mm / 2 deg
+not. Measured on a synthetic PSM scene (f = 1000 px; hand-eye error 3 mm / 2 deg
 in a random direction, noisy lines/pixels/markers, the true E drifting by a
 random walk of the motion model's size, 200 frames, 3 seeds; error of
 E_est E_true^-1, mean over the last 50 frames):
@@ -64,12 +64,12 @@ from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.estimate.options import PARTICLES, SEARCH
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
-from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project, rotations
 from graphtrack.estimate.gating import marker_gate
+from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
-from graphtrack.geometry.se3 import project_to_so3
+from graphtrack.geometry.se3 import project_to_so3, so3_exp_batch
 from graphtrack.robot.features import base_features
 
 
@@ -110,7 +110,8 @@ class ParticleFilter:
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
-                 search_hypotheses: int = 2048, reinit_gap: int = 30):
+                 search_hypotheses: int = 2048, reinit_gap: int = 30,
+                 marker_gate_follows_covariance: bool = False):
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
@@ -134,9 +135,11 @@ class ParticleFilter:
         self.marker_gamma = float(marker_gamma)
         self.marker_gate = self.configured_gate = float(marker_gate) * float(gate_scale)
         self.gate_scale = float(gate_scale)
+        self.gate_follows = bool(marker_gate_follows_covariance)   # estimate/gating.py; off: see its doc
         self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
+        self._buffers_right: dict = {}   # the right image's pixel buffers (its own sizes)
         self._geometry_cache = None
         self.search_std = np.array([search_std_b] * 3 + [search_std_w] * 3, dtype=float)
         self.search = None
@@ -158,7 +161,7 @@ class ParticleFilter:
         self.logw = np.full(self.N, -np.log(self.N))
         self.t = 0
         self.x_mean = centre.copy()
-        self.R_mean = rotations(centre[None, 3:])[:, :, 0]
+        self.R_mean = so3_exp_batch(centre[None, 3:])[:, :, 0]
         self.cov = np.diag(self.init_std ** 2)
 
     @property
@@ -187,8 +190,13 @@ class ParticleFilter:
             self._geometry_cache = (key, frame_geometry(self.robot, q, self.E0))
         return self._geometry_cache[1]
 
-    def _project(self, q: np.ndarray, x: np.ndarray | None = None) -> Hypotheses:
+    def _project(self, q: np.ndarray, x: np.ndarray | None = None, right: bool = False,
+                 R: np.ndarray | None = None) -> Hypotheses:
+        """Every particle's (or state x's) projection into the left image, or with
+        ``right`` into the stereo right one (:mod:`graphtrack.estimate.stereo`)."""
         x = self.x if x is None else np.atleast_2d(np.asarray(x, float))
+        if right:
+            return project(self._frame_geometry(q), self.ctx.right.K, x, self.ctx.right_T_left, R)
         return project(self._frame_geometry(q), self.K, x)
 
     def hypotheses(self, q: np.ndarray, x: np.ndarray | None = None) -> dict:
@@ -211,18 +219,32 @@ class ParticleFilter:
         return np.stack([h["rho"][0], h["theta"][0]], -1)
 
     # -- the filter step --------------------------------------------------------------
-    def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None) -> np.ndarray:
-        """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x)."""
-        return self._loglik(self._project(q, x), observation)
+    def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None,
+                       right=None) -> np.ndarray:
+        """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x);
+        with the right image's observation ``right`` (stereo context) the sum of both
+        images' terms (:mod:`graphtrack.estimate.stereo`)."""
+        h = self._project(q, x)
+        return self._loglik(h, observation) + self._loglik_right(q, x, h, right)
 
-    def _loglik(self, h: Hypotheses, observation) -> np.ndarray:
+    def _loglik_right(self, q, x, h: Hypotheses, right) -> np.ndarray | float:
+        """The right image's term log P(z_right | right_T_left . E(x_n)), 0 without one."""
+        if right is None or not self.ctx.stereo or not self._informative(right):
+            return 0.0
+        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right)
+
+    def _informative(self, observation) -> bool:
+        return observation is not None and (observation.has_shaft
+                                            or (self.use_markers and len(observation.markers) > 0))
+
+    def _loglik(self, h: Hypotheses, observation, buffers: dict | None = None) -> np.ndarray:
         n = len(h.valid)
         ll = np.zeros(n)
         if observation is None:
             return ll
         if observation.has_shaft:
             ll += om.shaft_loglik(observation, h.rho.T, lambda: h.theta.T, h.valid,
-                                  _buffers=self._buffers, cos_sin=(h.cos.T, h.sin.T),
+                                  _buffers=self._buffers if buffers is None else buffers, cos_sin=(h.cos.T, h.sin.T),
                                   **self.shaft_options)
         if self.use_markers and len(observation.markers):
             ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers,
@@ -231,24 +253,21 @@ class ParticleFilter:
                                       **self.marker_options)
         return ll
 
-    def step(self, frame: Frame, observation=None) -> Estimate:
+    def step(self, frame: Frame, observation=None, right=None) -> Estimate:
         q = frame.q
         if self.t > 0:
             self.predict()
         self.t += 1
         h = self._project(q)
-        informative = observation is not None and (
-            observation.has_shaft or (self.use_markers and len(observation.markers)))
+        informative = self._informative(observation)
         if self.search is not None and self.search.propose(q, observation, self.E, informative) is not None:
-            self._redraw(self.search.result)  # start-up, long gap or divergence: global search
+            self._redraw(self.search.result)  # start-up, long gap or divergence: global search (left view)
             h = self._project(q)
-        if informative:
-            if self.use_markers and len(observation.markers):   # gate from the predicted cloud
-                self.marker_gate = marker_gate(base_features(self.robot, q).transformed(self.E).points,
-                                               self.K, self.cov + np.diag(self.motion_std ** 2),
-                                               self.configured_gate, self.marker_options["sigma"],
-                                               self.gate_scale)
-            self.logw = normalize_log_weights(self.logw + self._loglik(h, observation))
+        if self.gate_follows and informative and len(observation.markers):
+            self._gate_markers(q)
+        if informative or (right is not None and self._informative(right)):
+            self.logw = normalize_log_weights(self.logw + self._loglik(h, observation)
+                                              + self._loglik_right(q, None, h, right))
         w = np.exp(self.logw)
         ess = effective_sample_size(w)
         # estimate: weighted mean of b, chordal mean of R(w)
@@ -262,6 +281,14 @@ class ParticleFilter:
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est
+
+    def _gate_markers(self, q) -> None:
+        """The marker gate of this frame from the predicted cloud's covariance
+        (:mod:`graphtrack.estimate.gating`)."""
+        if self.use_markers:
+            self.marker_gate = marker_gate(base_features(self.robot, q).transformed(self.E).points, self.K,
+                                           self.cov + np.diag(self.motion_std ** 2), self.configured_gate,
+                                           self.marker_options["sigma"], self.gate_scale)
 
     def _redraw(self, res) -> None:
         """Redraw the cloud from a search result (:mod:`graphtrack.estimate.reinit`):

@@ -15,8 +15,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   prior (|x_c / spread|^2 > ``prior_gate``, chi^2_6's 99.9 % point: the lumped
   error never leaves it) is rejected.
 - After a gap (an informative frame after ``gap`` or more frames without one)
-  the estimate is a prediction with nothing locked: x_c is adopted when it
-  explains this frame better than the prediction by more than ``margin`` nats.
+  on which the prediction explains little (misfit above the monitor's
+  threshold: the tool moved while unseen) nothing is locked: x_c is adopted when
+  it explains this frame better than the prediction by more than ``margin``
+  nats. A prediction that still fits keeps its lock (the monitor watches it).
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -128,11 +130,10 @@ class SearchInit:
             self.since = 0
             return self._adopt(self._search(q, observation, x_cur))
         ll_cur = float(self.scorer(q, observation, x_cur[None])[0])
-        diverged, m_cur = False, float("nan")
-        if self.monitor is not None:
-            m_cur = misfit(ll_cur, self.scorer.floor(q, observation, x_cur))
-            diverged = self.monitor.update_misfit(m_cur)
-        after_gap = self.since >= self.gap
+        m_cur = misfit(ll_cur, self.scorer.floor(q, observation, x_cur))
+        diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
+        threshold = self.monitor.threshold if self.monitor is not None else 0.5
+        after_gap = self.since >= self.gap and not m_cur <= threshold   # the prediction explains nothing
         self.since = 0
         if self.candidate is not None and not after_gap:
             return self._test(q, observation, ll_cur, m_cur)

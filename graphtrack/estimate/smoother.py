@@ -9,7 +9,8 @@ One gtsam.Pose3 E_t per frame (key x_t; y_t once settled, see below). Factors:
   x_t, identity) with left per-frame stds (motion_sigma_b, motion_sigma_w),
   the particle filter's Gaussian random walk;
 - the frame's detections (:func:`graphtrack.estimate.graph.frame_factors`):
-  shaft pixels / lines and markers, robust;
+  shaft pixels / lines and markers, robust; in stereo also the right image's
+  (:mod:`graphtrack.estimate.stereo`), on the same x_t;
 - pixel models: the edge-bias vector b_j shared by frames jn .. jn + n - 1
   (n = ``edge_bias_every``, key b_j), its prior at frame 0 and the
   Gauss-Markov transition from b_{j-1} (:mod:`factors.edge_bias`); the
@@ -92,8 +93,9 @@ from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.robot.features import base_features
-from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, frame_factor_groups, gaussian_bw,
+from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussian_bw,
                                        key, left_from_right_cov, split_options)
+from graphtrack.estimate.stereo import stereo_factor_groups
 from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
 
 
@@ -129,7 +131,7 @@ class FixedLagSmootherEstimator:
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
                  start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
                  search_std_w: float = 0.05, reinit_gap: int = 30, jump_sigma_b: float = 5e-3,
-                 jump_sigma_w: float = 0.035, **options):
+                 jump_sigma_w: float = 0.035, marker_gate_follows_covariance: bool = False, **options):
         import gtsam
 
         self.gtsam = gtsam
@@ -183,6 +185,7 @@ class FixedLagSmootherEstimator:
         self.timings_ms: list[float] = []
         self.reinit = None
         self.last_cov = None          # marginal covariance of the last x_t (the marker gate)
+        self.gate_follows = bool(marker_gate_follows_covariance)   # estimate/gating.py; off: see its doc
         self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
         if search:
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
@@ -211,7 +214,7 @@ class FixedLagSmootherEstimator:
         """The factor options with this frame's marker gate from the last marginal
         covariance (:mod:`graphtrack.estimate.gating`); the configured gate without one."""
         o = self.fopts
-        if self.last_cov is None or observation is None or not len(observation.markers):
+        if not self.gate_follows or self.last_cov is None or observation is None or not len(observation.markers):
             return o
         C = self.last_cov + self.motion_cov
         points = base_features(self.ctx.robot, q).transformed(self.last.matrix()).points
@@ -252,7 +255,7 @@ class FixedLagSmootherEstimator:
         return pose
 
     # -- Estimator -------------------------------------------------------------------
-    def step(self, frame: Frame, observation) -> Estimate:
+    def step(self, frame: Frame, observation, right=None) -> Estimate:
         gtsam = self.gtsam
         t_start = time.perf_counter()
         self.k += 1
@@ -283,9 +286,9 @@ class FixedLagSmootherEstimator:
         # the window timestamp of this frame's variables: with the edge-bias state the
         # bias block's first frame, so that the block's variables leave together
         stamp = self.bias_stamp if self.bias else t
-        shaft, markers = frame_factor_groups(k, frame.q, observation, self.ctx.robot, self.K,
-                                             self._gated_options(frame.q, observation), self.E0, pose_key=x,
-                                             line_bias=self.settled)
+        shaft, markers = stereo_factor_groups(k, frame.q, observation, right, self.ctx, self.K,
+                                              self._gated_options(frame.q, observation), self.E0, pose_key=x,
+                                              line_bias=self.settled)
         jump, found = False, None
         if self.reinit is not None:   # start-up / re-initialisation: initial value from the search
             found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers))

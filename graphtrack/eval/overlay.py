@@ -15,6 +15,7 @@ sampled along them (a straight undistorted line is curved in the raw image).
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
@@ -138,13 +139,20 @@ class OverlayWriter:
     ``write(frame, estimate, detection, observation, tip_uv_raw)`` per tracked
     frame; ``close()`` at the end (also a context manager). ``frames_written``
     counts the frames.
+
+    Stereo (``ctx.stereo``): each video frame is left | right side by side (twice
+    the width), the right panel drawn through the right camera (right_T_left . E,
+    K2, D2) with the right image's ``right`` = (Detection, Observation) and
+    ``labels_right``; a frame without its right image has a black right panel.
     """
 
     def __init__(self, path: str | Path, ctx, labels: dict | None = None, fps: float | None = None,
-                 title: str | None = None):
+                 title: str | None = None, labels_right: dict | None = None):
         self.path = Path(path)
         self.ctx = ctx
         self.labels = labels or {}
+        self.labels_right = labels_right or {}
+        self.right_ctx = dataclasses.replace(ctx, camera=ctx.right) if getattr(ctx, "stereo", False) else None
         self.title = title
         self._video = StampedVideoWriter(self.path, fps)
 
@@ -157,12 +165,29 @@ class OverlayWriter:
     def frames_written(self) -> int:
         return self._video.frames_received
 
-    def write(self, frame, estimate, detection=None, observation=None, tip_uv_raw=None) -> None:
+    def write(self, frame, estimate, detection=None, observation=None, tip_uv_raw=None,
+              right=(None, None)) -> None:
         E = None if estimate is None else getattr(estimate, "E", estimate)
         label = self.labels.get(int(frame.index))
         text = f"frame {frame.index}" + (f"  {self.title}" if self.title else "")
         img = draw_overlay(frame.image, self.ctx, frame.q, E, detection, observation, tip_uv_raw, label, text)
+        if self.right_ctx is not None:
+            img = np.hstack([img, self._right_panel(frame, E, right, img.shape)])
         self._video.write(img, frame.stamp)
+
+    def _right_panel(self, frame, E, right, shape) -> np.ndarray:
+        """The right image's overlay (black without the right image), resized to ``shape``."""
+        if frame.image_right is None:
+            return np.zeros(shape, np.uint8)
+        Er = None if E is None else self.ctx.right_T_left @ E
+        tip = None
+        feats = base_features(self.ctx.robot, frame.q)
+        if Er is not None and feats.tip is not None:
+            p = feats.transformed(Er).tip
+            tip = self.right_ctx.camera.project_raw(p) if p[2] > 0 else None
+        img = draw_overlay(frame.image_right, self.right_ctx, frame.q, Er, right[0], right[1], tip,
+                           self.labels_right.get(int(frame.index)), "right")
+        return img if img.shape == shape else cv2.resize(img, (shape[1], shape[0]))
 
     def close(self) -> None:
         self._video.close()

@@ -11,7 +11,15 @@ from graphtrack.track import TrackOptions
 STUDY_VERSION = 1
 #: Options that change a cell's result: a study folder holds one value of each.
 CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
-                "alpha", "beta", "markers")
+                "alpha", "beta", "markers", "views")
+#: the mono / stereo axis: stereo (both images where the recording has a right one),
+#: mono (left only, ``--mono``), both (every cell twice, the mono one keyed "-mono")
+VIEWS = ("stereo", "mono", "both")
+
+
+def view_flags(views: str) -> list[bool]:
+    """The ``stereo`` values of a study's cells for its ``views``."""
+    return {"stereo": [True], "mono": [False], "both": [True, False]}[views]
 
 
 @dataclass
@@ -19,7 +27,8 @@ class StudyOptions:
     """estimators x observations: the cells run on every recording (the kinematics
     baseline once per recording); detection, estimation, seed: as in every cell's
     TrackOptions; max_frames: per recording (None: all); repeats: runs (seeds
-    seed .. seed+repeats-1) of each seed-dependent cell."""
+    seed .. seed+repeats-1) of each seed-dependent cell; views: the mono / stereo
+    axis (:data:`VIEWS`)."""
 
     estimators: list[str] = field(default_factory=lambda: list(ESTIMATORS))
     observations: list[str] = field(default_factory=lambda: [OBSERVATION])
@@ -28,13 +37,14 @@ class StudyOptions:
     seed: int = 0
     max_frames: int | None = None
     repeats: int = 1
+    views: str = "stereo"
 
     def cell_options(self) -> dict:
         """The CELL_OPTIONS values (flat, as study.json and done.json store them)."""
         d, e = self.detection, self.estimation
         return {"detector": d.detector, "weights": d.weights, "max_frames": self.max_frames,
                 "particles": e.particles, "lag": e.lag, "smoother": e.smoother, "seed": self.seed,
-                "alpha": d.alpha, "beta": d.beta, "markers": d.markers}
+                "alpha": d.alpha, "beta": d.beta, "markers": d.markers, "views": self.views}
 
 
 @dataclass
@@ -47,15 +57,23 @@ class Cell:
     options: dict           # StudyOptions.cell_options()
     video: bool = False     # also write overlay.mp4
     repeat: int = 0         # 0: the study's seed; r: a repeat with seed + r (its options' seed)
+    stereo: bool = True     # both images where the recording has a right one (False: --mono)
+
+    @property
+    def _mono_suffix(self) -> str:
+        """"-mono" for the mono cells of a study over both views (none otherwise)."""
+        return "-mono" if not self.stereo and self.options.get("views") == "both" else ""
 
     @property
     def key(self) -> str:
         k = self.estimator if self.observation is None else f"{self.estimator}-{self.observation}"
+        k += self._mono_suffix
         return k if self.repeat == 0 else f"{k}.seed{self.options['seed']}"
 
     @property
     def row(self) -> tuple[str, str]:
-        return ("—" if self.observation is None else self.observation, self.estimator)
+        est = self.estimator + (" (mono)" if self._mono_suffix else "")
+        return ("—" if self.observation is None else self.observation, est)
 
     def track_options(self) -> TrackOptions:
         """The cell's TrackOptions (one seed for the observation draws and the estimator)."""
@@ -66,4 +84,4 @@ class Cell:
                                        beta=o["beta"], markers=o["markers"]),
             estimation=EstimatorOptions(particles=o["particles"], seed=o["seed"], lag=o["lag"],
                                         smoother=o["smoother"]),
-            seed=o["seed"])
+            seed=o["seed"], stereo=self.stereo)

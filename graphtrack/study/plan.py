@@ -39,7 +39,7 @@ from pathlib import Path
 from graphtrack.detect.observe import SEEDED_MODELS
 from graphtrack.errors import InputError
 from graphtrack.estimate import estimator_class
-from graphtrack.study.cells import CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions
+from graphtrack.study.cells import CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions, view_flags
 from graphtrack.study.execute import run_local, run_ray
 from graphtrack.study.report import is_done, plot_accumulated, write_tables
 
@@ -100,11 +100,12 @@ def plan(paths: list[str], options: StudyOptions, out: Path,
                 if est in blind or obs not in supported_observations(est):
                     continue
                 n = options.repeats if seed_dependent(est, obs) else 1
-                for r in range(n):
-                    o = opts if r == 0 else dict(opts, seed=opts["seed"] + r)
-                    folder = f"{est}-{obs}" if r == 0 else f"{est}-{obs}.seed{o['seed']}"
-                    cells.append(Cell(name, str(Path(path).resolve()), est, obs, str(root / folder), o,
-                                      repeat=r))
+                for stereo in view_flags(options.views):
+                    for r in range(n):
+                        o = opts if r == 0 else dict(opts, seed=opts["seed"] + r)
+                        c = Cell(name, str(Path(path).resolve()), est, obs, "", o, repeat=r, stereo=stereo)
+                        c.out = str(root / c.key)
+                        cells.append(c)
     return cells, notes
 
 
