@@ -103,8 +103,8 @@ class SearchInit:
         """One frame of the candidate's sequential likelihood-ratio test (module doc)."""
         c = self.candidate
         xc = c.result.x
-        ll_c = float(self.scorer(q, observation, xc[None])[0])
-        m = misfit(ll_c, self.scorer.floor(q, observation, xc))
+        ll_c, floor = self.scorer.with_floor(q, observation, xc)
+        m = misfit(ll_c, floor)
         c.llr += ll_c - ll_cur
         c.misfits += m if np.isfinite(m) else 1.0
         c.current += m_cur if np.isfinite(m_cur) else 0.0
@@ -129,8 +129,8 @@ class SearchInit:
         if self.since is None:                      # start-up
             self.since = 0
             return self._adopt(self._search(q, observation, x_cur))
-        ll_cur = float(self.scorer(q, observation, x_cur[None])[0])
-        m_cur = misfit(ll_cur, self.scorer.floor(q, observation, x_cur))
+        ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
+        m_cur = misfit(ll_cur, floor)
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
         threshold = self.monitor.threshold if self.monitor is not None else 0.5
         after_gap = self.since >= self.gap and not m_cur <= threshold   # the prediction explains nothing
