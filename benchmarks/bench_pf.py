@@ -4,8 +4,8 @@
     run(results)                             # fills results["pf"] for a benchmark runner
 
 One core: OMP/OpenBLAS/MKL threads and torch's intra-op threads are set to 1.
-The scene is graphtrack.estimate.pf.synthetic (PSM + Large Needle Driver, a
-1280x1024 f = 1000 px camera): every step reads a different joint vector of
+The scene is graphtrack.sim.synthetic (PSM + Large Needle Driver, a
+1280x1024 f = 1100 px camera): every step reads a different joint vector of
 a smooth trajectory, ~500 shaft pixels (line-intensities, 2 edges, 5 %
 outliers) and 4 detected markers. Figures are medians over REPEATS steps
 after WARMUP steps. ``loop_ratio`` compares with a straightforward
@@ -38,20 +38,20 @@ COUNTS = (100, 300, 1000, 3000, 10000)
 def _inputs(n_frames: int = 64):
     from graphtrack.detect.base import Observation
     from graphtrack.io.frame import Frame
-    from graphtrack.estimate.pf.synthetic import make_scene
     from graphtrack.robot.features import base_features
+    from graphtrack.sim.synthetic import HANDEYE_ERROR, make_scene, sequence
 
     scene = make_scene()
+    seq = sequence(n_frames, seed=0, scene=scene, pixels_per_edge=250, outliers=0.05, marker_model="point")
+    E_true = scene.true_E(HANDEYE_ERROR)
     rng = np.random.default_rng(0)
     frames = []
-    for t in range(n_frames):
-        q = scene.joints(t)
-        obs = scene.observation(q, "line-intensities", rng, n_pixels=250, outliers=0.05)
+    for f in seq.frames:
         # all four markers, visible or not, so that every step scores 4
-        m = base_features(scene.ctx.robot, q).transformed(scene.E_true).points
-        mk = scene.ctx.camera.project_undistorted(m) + rng.standard_normal((4, 2))
-        obs = Observation(obs.model, pixels=obs.pixels, markers=mk, edge_ids=obs.edge_ids)
-        frames.append((Frame(t, t / 30, None, q[:6], q[6]), obs))
+        m = base_features(scene.robot, f.q).transformed(E_true).points
+        mk = scene.camera.project_undistorted(m) + rng.standard_normal((4, 2))
+        obs = Observation("line-intensities", pixels=f.pixels, markers=mk, edge_ids=np.arange(2))
+        frames.append((f.frame(), obs))
     return scene, frames
 
 

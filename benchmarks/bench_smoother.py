@@ -17,11 +17,13 @@ import sys
 import time
 from pathlib import Path
 
+from functools import partial
+
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from factors.synthetic import make_scene, sequence  # noqa: E402
+from graphtrack.sim.synthetic import make_scene, sequence  # noqa: E402
 from graphtrack.detect.base import Observation  # noqa: E402
 from graphtrack.io.frame import Frame  # noqa: E402
 from graphtrack.estimate.batch import BatchEstimator  # noqa: E402
@@ -45,7 +47,8 @@ def nees_monte_carlo(results: dict, runs: int = 200) -> None:
     # (no tempering) and has no edge-bias state
     res = monte_carlo_nees(lambda ctx: FixedLagSmootherEstimator(ctx, lag=1.0, pixel_effective_count=0,
                                                                  edge_bias=False),
-                           runs=runs, first=60, last=200, pixel_noise=1.5, marker_noise=2.0, progress=True)
+                           partial(sequence, scene=make_scene()), runs=runs, first=60, last=200,
+                           pixel_noise=1.5, marker_noise=2.0, progress=True)
     results["nees_mc_runs"] = runs
     results["nees_mc_mean"] = res.mean
     results["nees_mc_band_lo"], results["nees_mc_band_hi"] = res.band

@@ -26,7 +26,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-SECTIONS = ("sim", "detect", "pf", "smoother", "track", "accuracy")
+SECTIONS = ("sim", "detect", "pf", "smoother", "track", "accuracy", "robustness")
 RENDERED = SECTIONS + ("scaling",)
 
 #: (section, key, what, target, ">=" | "<=", unit). Keys missing from the results show as "not measured".
@@ -49,6 +49,17 @@ TARGETS = [
      "track 540x960, learned + smoother, a busy core beside it (own process, --threads 1)", 30, ">=", "frames/s"),
     ("track", "fps_1080_canny_smoother", "track 1080x1920, canny + smoother", 30, ">=", "frames/s"),
     ("track", "fps_1080_canny_pf", "track 1080x1920, canny + particle filter (1000)", 30, ">=", "frames/s"),
+    ("robustness", "converged15_pf", "PF converges within 15 frames (randomized, held out)", 0.95, ">=", ""),
+    ("robustness", "converged15_smoother", "smoother converges within 15 frames (randomized, held out)", 0.95,
+     ">=", ""),
+    ("robustness", "never_worse_pf", "PF never worse than no tracking over any 10 frames", 0.99, ">=", ""),
+    ("robustness", "never_worse_smoother", "smoother never worse than no tracking over any 10 frames", 0.99,
+     ">=", ""),
+    ("robustness", "p95_ratio_smoother_batch", "smoother p95 / batch p95 of per-recording mean tip error", 1.5,
+     "<=", ""),
+    ("robustness", "reacquired15_pf", "PF re-acquires within 15 frames after a disturbance", 0.95, ">=", ""),
+    ("robustness", "reacquired15_smoother", "smoother re-acquires within 15 frames after a disturbance", 0.95,
+     ">=", ""),
     ("track", "peak_rss_mb_1080_1800", "peak RSS tracking 1800 frames at 1080x1920", 1024, "<=", "MB"),
 ]
 

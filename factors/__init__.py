@@ -21,8 +21,8 @@ convention
   offset and slope, px) and its Gauss-Markov prior and transition;
 - :mod:`factors.limb`: the pairing of a frame's shaft observations with the two
   limbs (the limb lines and their derivatives are
-  :func:`graphtrack.geometry.cylinder.limb_line_coefficients`);
-- :mod:`factors.synthetic`: observations synthesised from the geometry (tests,
-  benchmarks).
+  :func:`graphtrack.geometry.cylinder.limb_line_coefficients`).
+
+Synthetic observations for their tests: :mod:`graphtrack.sim.synthetic`.
 """
 from factors.robust import RobustKernel, make_kernel  # noqa: F401

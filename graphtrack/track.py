@@ -122,8 +122,7 @@ class Pipeline:
         standard deviations of the last estimate (Z: depth of the shaft point, f
         in detection pixels); the offset gate is max(configured, 3 s), at most
         ``MAX_GATE_PX``. Before the first estimate (nothing known yet) it is
-        MAX_GATE_PX. A fixed 40 px gate at a start-up 42 px off kept a
-        tuning recording's true edges out for 8 frames.
+        MAX_GATE_PX. Why: docs/decisions/gate-follows-covariance.md.
         """
         if self.detector is None or not self.ctx.robot.shaft_features:
             return None

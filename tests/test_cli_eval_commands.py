@@ -15,8 +15,8 @@ def rec(tmp_path_factory):
                     size=(270, 480), progress=False, form="folder")
 
 
+@pytest.mark.slow
 def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
-    pytest.importorskip("graphtrack.detect.observe")
     monkeypatch.setenv("GRAPHTRACK_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--frames", "6", "--quiet"]) == 0
@@ -42,7 +42,6 @@ def test_demo_end_to_end(tmp_path, monkeypatch, capsys):
 
 
 def test_detect_writes_csv_and_video(rec, tmp_path):
-    pytest.importorskip("graphtrack.detect.observe")
     out = tmp_path / "det"
     assert main(["detect", str(rec), "--detector", "canny", "--out", str(out), "--max-frames", "5",
                  "--video", "--quiet"]) == 0
@@ -62,13 +61,12 @@ def test_detect_bad_recording_exit_2(tmp_path, capsys):
     assert "graphtrack: error:" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_refine_is_track_with_batch(rec, tmp_path):
     from graphtrack.cli import build_parser
 
     args = build_parser().parse_args(["refine", str(rec), "--out", str(tmp_path / "r")])
     assert args.estimator == "batch"
-    pytest.importorskip("graphtrack.estimate.batch")
-    pytest.importorskip("graphtrack.detect.observe")
     assert main(["refine", str(rec), "--out", str(tmp_path / "r"), "--max-frames", "6", "--quiet"]) == 0
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert m["estimator"] == "batch" and m["frames_tracked"] == 6

@@ -23,6 +23,7 @@ def _compare(rec_paths, out, *extra):
                  "--particles", "64", *extra])
 
 
+@pytest.mark.slow
 def test_compare_writes_table_csv_png_and_resumes(rec, tmp_path, capsys):
     out = tmp_path / "study"
     rc = _compare([rec], out, "--estimators", "kinematics,pf", "--observations", "line-intensities")
@@ -73,6 +74,7 @@ def test_compare_refuses_mixing_options(rec, tmp_path, capsys):
     assert len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_failing_cell_is_reported_and_the_rest_completes(rec, tmp_path, capsys):
     bad = tmp_path / "broken"
     shutil.copytree(rec, bad)
@@ -97,6 +99,7 @@ def test_unknown_estimator_is_input_error(rec, tmp_path, capsys):
     assert "nope" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_compare_on_local_ray(rec, tmp_path):
     pytest.importorskip("ray")
     out = tmp_path / "study"
@@ -108,6 +111,7 @@ def test_compare_on_local_ray(rec, tmp_path):
     assert json.loads((cell / "done.json").read_text())["result"]["frames_tracked"] == 12
 
 
+@pytest.mark.slow
 def test_repeats_run_seed_dependent_cells_and_report_their_mean(rec, tmp_path):
     out = tmp_path / "study"
     rc = _compare([rec], out, "--estimators", "pf,smoother", "--max-frames", "6",

@@ -6,7 +6,6 @@ then INTER_AREA), clutter lines, an optional texture, noise and a blue marker.
 """
 from __future__ import annotations
 
-import time
 
 import cv2
 import numpy as np
@@ -157,12 +156,18 @@ def test_degenerate_frames(frame):
 
 
 def test_black_undistortion_border_is_ignored():
+    """Black bands left and right (an undistortion's empty border): the shaft's two
+    edges are still found at the truth, and no segment is the border's vertical
+    step (every segment inside the bands, or far from vertical)."""
     img = shaft_scene(clutter=False)
     img[:, :80] = 0        # empty border left by an undistortion
     img[:, -80:] = 0
-    det = CannyDetector().detect(img)
-    for x1, y1, x2, y2 in det.segments:
-        assert min(x1, x2) > 60 and max(x1, x2) < W - 60 or abs(x1 - x2) > 20
+    for pred in (None, truth_lines()):
+        det = CannyDetector().detect(img, pred)
+        assert len(det.shaft_lines) == 2 and len(det.segments) >= 2
+        assert_lines_close(det.shaft_lines, truth_lines())
+        for x1, y1, x2, y2 in det.segments:
+            assert min(x1, x2) > 60 and max(x1, x2) < W - 60 or abs(x1 - x2) > 20
 
 
 def test_plain_hough_and_no_refine_options():
@@ -190,18 +195,6 @@ def test_factory_and_options():
         make_detector("no-such-detector")
     with pytest.raises(ValueError):
         CannyDetector().detect(np.zeros((10, 10, 3), np.float32))
-
-
-def test_speed_sanity():
-    img = shaft_scene(texture=10.0)
-    d = CannyDetector()
-    d.detect(img)
-    t = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        d.detect(img)
-        t.append(time.perf_counter() - t0)
-    assert min(t) < 0.2   # a few ms when the machine is idle; generous for loaded CI
 
 
 def test_widened_gates_per_call():

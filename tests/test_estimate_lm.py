@@ -2,7 +2,7 @@
 import gtsam
 import numpy as np
 
-from factors.synthetic import make_scene, sequence
+from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.io.frame import Frame
 from graphtrack.estimate.batch import BatchEstimator

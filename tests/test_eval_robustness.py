@@ -57,3 +57,10 @@ def test_nan_window_mean_uses_finite_frames_only():
     est[0] = np.nan
     # the first window holds 9 finite frames of -8 px: mean -8, not -7.2
     assert worst_window_excess(est, base, 10) == pytest.approx(-8.0)
+
+
+def test_recording_figures_segments():
+    e = np.ones(40)
+    f = recording_figures(e, np.full(40, 5.0), [(10, 20), (30, 35)])
+    assert f["startup_segment"] == 10 and f["reacquire_segments"] == [10, 5]
+    assert f["reacquire_frames"] == [0, 0]

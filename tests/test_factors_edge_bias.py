@@ -10,7 +10,7 @@ from factors.edge_bias import (SLOPE_SCALE, BiasTransitionError, bias_coefficien
                                transition)
 from factors.limb import LimbPairing
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
-from factors.synthetic import make_scene, sequence
+from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.io.frame import Frame
@@ -200,6 +200,7 @@ def _biased_frames(robot, cam, E0, frames, offset, slope):
     return out
 
 
+@pytest.mark.slow
 def test_persistent_edge_offset_no_longer_drags_the_batch():
     """Both edge sets 1.5 px off their limbs the same way in the image (+1.5 px along
     limb 0's inward normal, -1.5 px along limb 1's: a lateral shift, l = 1.5) plus a
@@ -293,6 +294,7 @@ def test_biased_line_matches_a_moved_limb(scene):
         assert abs(r0[0]) > 0.5 or abs(r0[1]) > 1e-3
 
 
+@pytest.mark.slow
 def test_persistent_line_offset_no_longer_drags_the_batch():
     """The polar models' lines, each moved off its true limb the same way in every
     frame (limb 0 by 2.3 px inwards, limb 1 by 1.7 px, both turned by 2 px per

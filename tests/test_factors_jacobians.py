@@ -9,7 +9,7 @@ from factors.line_parameter import LineParameterError, line_parameter_factor
 from factors.marker import MarkerError, marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
-from factors.synthetic import sequence
+from graphtrack.sim.synthetic import sequence
 from graphtrack.geometry.cylinder import ShaftAxis, limb_line_coefficients
 from graphtrack.robot.features import base_features
 

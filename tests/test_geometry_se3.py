@@ -87,3 +87,23 @@ def test_average_rotations_recovers_mean(spread):
     Ravg = se3.average_rotations(R0 @ noise)
     assert np.linalg.norm(se3.so3_log(Ravg.T @ R0)) < 3 * spread / np.sqrt(4000) * 3
     assert abs(np.linalg.det(Ravg) - 1) < 1e-12
+
+
+def _axis_angles(rng, n: int = 400) -> np.ndarray:
+    """Rows across the branches: zero, below and above the series' t^2 = 1e-8, generic, near pi, beyond."""
+    axes = rng.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([[0.0, 1e-12, 9.9e-5, 1.01e-4, np.pi - 1e-9, np.pi, 2.5 * np.pi],
+                             10.0 ** rng.uniform(-7, 0.5, n - 7)])
+    return axes * angles[:, None]
+
+
+def test_so3_exp_batch_matches_the_single_form_and_scipy():
+    w = _axis_angles(np.random.default_rng(3))
+    R = se3.so3_exp_batch(w)
+    assert R.shape == (3, 3, len(w)) and np.all(np.isfinite(R))
+    single = np.stack([se3.so3_exp(v) for v in w])           # (N, 3, 3)
+    np.testing.assert_allclose(np.moveaxis(R, -1, 0), single, atol=1e-15, rtol=0)
+    np.testing.assert_allclose(np.moveaxis(R, -1, 0), Rotation.from_rotvec(w).as_matrix(), atol=1e-14, rtol=0)
+    assert se3.so3_exp_batch(np.zeros(3)).shape == (3, 3, 1)
+    np.testing.assert_array_equal(se3.so3_exp_batch(np.zeros((2, 3))), np.broadcast_to(np.eye(3)[..., None], (3, 3, 2)))

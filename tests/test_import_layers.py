@@ -4,7 +4,7 @@ each other, directly or through others.
 
 Layers, lowest first (a unit may import any unit below it, never one above):
 
-    errors < threads;  errors < geometry < robot < io < detect < factors < estimate < eval < track < study < commands < cli
+    errors < threads (< study, commands);  errors < geometry < robot < io < detect < factors < estimate < eval < track < study < commands < cli
                                     detect < sim < training < commands
 
 ``sim`` renders recordings (geometry, robot, io, detect), ``training`` trains
@@ -30,7 +30,7 @@ BELOW = {
     "estimate": {"factors"},
     "eval": {"estimate"},
     "track": {"eval"},
-    "study": {"track"},
+    "study": {"track", "threads"},   # study workers run one thread each (limit_threads)
     "sim": {"detect"},
     "training": {"sim"},
     "commands": {"study", "training", "threads"},

@@ -11,7 +11,8 @@ import pytest
 
 from graphtrack.errors import FrameError, InputError
 from graphtrack.geometry.camera import Calibration, Camera, save_calibration
-from graphtrack.io.bag import COMPRESSED_TOPIC, IMAGE_TOPIC, decode_image
+from graphtrack.io.bag import COMPRESSED_TOPIC, IMAGE_TOPIC
+from graphtrack.io.image_msg import decode_image
 from graphtrack.io.bag_write import write_bag
 from graphtrack.io.folder import write_folder
 from graphtrack.io.handeye import save_handeye
@@ -150,8 +151,8 @@ def test_frames_start(tmp_path):
 
 
 def test_labels_and_real_robot_loader(tmp_path):
-    desc = pytest.importorskip("graphtrack.robot.description")
-    psm = pytest.importorskip("graphtrack.robot.psm")
+    from graphtrack.robot import description as desc
+    from graphtrack.robot import psm
     seq = bag_seq(tmp_path)
     (seq / "labels.csv").write_text("frame,u,v\n0,10.5,20.25\n3,1,2\n")
     desc.save_robot_json(seq / "robot.json", psm.psm_large_needle_driver())

@@ -136,9 +136,9 @@ def test_cli_bad_weights_exit_2(tmp_path, capsys):
         make_detector("learned", weights=str(tmp_path / "missing.pt"))
 
 
+@pytest.mark.slow
 def test_sold2_adapter_random_weights(tmp_path):
-    pytest.importorskip("kornia")
-    from kornia.feature import SOLD2_detector
+    from kornia.feature import SOLD2_detector   # kornia is a dependency (pyproject)
 
     from graphtrack.detect import make_detector
     from graphtrack.detect.sold2 import Sold2Detector

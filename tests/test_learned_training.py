@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 
@@ -34,6 +35,7 @@ def test_target_maps():
     assert float(y[0, 1, 5, 5]) == 1.0 and float(y[0, 1, 5, 15]) < 1e-6
 
 
+@pytest.mark.slow
 def test_train_command_tiny(tmp_path):
     from graphtrack.cli import main
     from graphtrack.detect.learned import LearnedDetector

@@ -5,12 +5,30 @@ import pytest
 from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS, Observation
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.particle_filter import ParticleFilter
-from graphtrack.estimate.pf.synthetic import make_scene
+from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
+
+X_TRUE = np.r_[0.003, 0.0, 0.0, 0.0, np.radians(2.0), 0.0]   # hand-eye error (m, rad)
+Q = joint_trajectory(91)
+
+
+class World:
+    """The synthetic world seen through E_true = Exp(X_TRUE) E_0 (markers as points)."""
+
+    def __init__(self):
+        s = make_scene()
+        self.ctx, self.x_true, self.E_true = s.ctx, X_TRUE, s.true_E(X_TRUE)
+        self.scene = s
+
+    def joints(self, t):
+        return Q[t]
+
+    def observation(self, q, model, rng, markers=True, **kw):
+        return observe(self.scene, q, self.E_true, rng, marker_model="point", **kw).observation(model, markers)
 
 
 @pytest.fixture(scope="module")
 def scene():
-    return make_scene()
+    return World()
 
 
 def perturbed(x_true):
@@ -125,18 +143,6 @@ def test_absurd_observations_stay_finite(scene, model):
                           markers=np.array([[np.nan, 0], [1e12, 3]]))
     ll = pf.log_likelihood(q, obs)
     assert np.all(np.isfinite(ll))
-
-
-def test_particle_rotations_match_scipy():
-    """Component-major Rodrigues against scipy's rotation vectors, small angles included."""
-    from scipy.spatial.transform import Rotation
-
-    from graphtrack.estimate.pf.projection import rotations
-
-    rng = np.random.default_rng(1)
-    w = rng.standard_normal((500, 3)) * np.repeat([1.0, 1e-3, 1e-6, 1e-9, 0.0], 100)[:, None]
-    R = np.moveaxis(rotations(w), -1, 0)
-    np.testing.assert_allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-14)
 
 
 def test_pixel_model_matches_per_pixel_formula():

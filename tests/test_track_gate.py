@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from factors.synthetic import Q0, make_scene
+from graphtrack.sim.synthetic import Q0, make_scene
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.detect.options import DetectionOptions
@@ -77,7 +77,7 @@ def test_batch_gates_its_detector_like_the_smoother():
     """The batch's provisional rows are the online smoother's, std included, so the
     detector it runs behind is gated exactly as the smoother's (same detections);
     without the std every frame had the widest gate, 150 px."""
-    from factors.synthetic import sequence
+    from graphtrack.sim.synthetic import sequence
     from graphtrack.detect.base import Observation
 
     robot, cam, E0, frames = sequence(5, seed=3)

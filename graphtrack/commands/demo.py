@@ -29,7 +29,7 @@ SEED = 0
 
 def default_detector() -> tuple[str, str | None]:
     """('learned', None) when the shipped learned-detector weights exist, else ('canny', None)."""
-    try:  # the learned detector needs torch, an optional dependency
+    try:  # lazy: learned.py loads torch (seconds), and the CLI imports every command to build its parser
         from graphtrack.detect.learned import DEFAULT_WEIGHTS
     except ImportError:
         return "canny", None

@@ -16,12 +16,11 @@ import sys
 from pathlib import Path
 
 from graphtrack.errors import InputError
+from graphtrack.robot.description import load_dvrk_config, load_robot_json, save_robot_json
+from graphtrack.robot.psm import psm_large_needle_driver
 
 
 def run(args) -> int:
-    from graphtrack.robot.description import load_dvrk_config, load_robot_json, save_robot_json
-    from graphtrack.robot.psm import psm_large_needle_driver
-
     out = Path(args.out)
     if out.exists() and not args.overwrite:
         raise InputError(f"{out}: already exists (pass --overwrite to replace it)")

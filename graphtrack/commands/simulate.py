@@ -25,7 +25,9 @@ def add_parser(sub) -> None:
     p.add_argument("--frames", type=int, default=300, help="number of frames (30 fps)")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same recording)")
     p.add_argument("--size", default="540x960", help="image size HxW")
-    p.add_argument("--compressed", action="store_true", help="PNG CompressedImage messages in the bag")
+    p.add_argument("--compressed", action="store_true", help="CompressedImage messages in the bag")
+    p.add_argument("--image-format", choices=("png", "jpeg"), default="png",
+                   help="image files of the folder form and compressed bag images (jpeg: quality 95)")
     p.add_argument("--form", default="bag", help="bag (ROS 1 bag) or folder (frames/ + joints.csv)")
     p.add_argument("--randomize", action="store_true",
                    help="randomized, harder recording (look, occlusions, out-of-view, smoke, blur, lighting, "
@@ -41,6 +43,6 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
-                   progress=args.progress, stereo=args.stereo)
+                   progress=args.progress, stereo=args.stereo, image_format=args.image_format)
     print(f"wrote {out}")
     return 0

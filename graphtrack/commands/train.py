@@ -26,8 +26,6 @@ import numpy as np
 
 from graphtrack.commands.common import add_threads_argument
 from graphtrack.errors import InputError
-from graphtrack.training.data import generate
-from graphtrack.training.fit import jpeg_roundtrip, save, train
 
 
 def add_parser(sub):
@@ -69,9 +67,13 @@ def run(args) -> int:
         raise InputError("--lr must be positive")
     if args.init is not None and not Path(args.init).is_file():
         raise InputError(f"{args.init}: weights file not found")
-    if args.device == "cuda":
-        import torch  # optional and heavy: imported when training
+    # lazy: training loads torch (seconds), and the CLI imports every command module to build its parser
+    import torch
 
+    from graphtrack.training.data import generate
+    from graphtrack.training.fit import jpeg_roundtrip, save, train
+
+    if args.device == "cuda":
         if not torch.cuda.is_available():
             raise InputError("--device cuda: no CUDA device available")
     out = Path(args.out)

@@ -1,8 +1,9 @@
 """Shaft-edge and marker detection on undistorted frames, and the method's pixel sets.
 
 - :mod:`.base`: Detection / Observation contracts, OBSERVATION_MODELS;
-- :mod:`.canny`: the Canny + Hough baseline; :func:`make_detector` builds any
-  registered detector by name;
+- :mod:`.canny`: the Canny + Hough baseline (:mod:`.hough`: oriented Hough
+  lines; :mod:`.line_refit`: their sub-pixel refit and segments);
+  :func:`make_detector` builds any registered detector by name;
 - :mod:`.association`: which candidate lines are the shaft's two edges;
 - :mod:`.pixel_sets`: E_e and E_l; :mod:`.ransac`: sequential RANSAC / TLS;
 - :mod:`.markers`: colour markers; :mod:`.observe`: Detection -> Observation;

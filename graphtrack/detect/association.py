@@ -129,61 +129,37 @@ def _best_pair(cost, gated, sig, pr, pid, cfg, L, seg) -> Association:
     return _result([i], [pid[j]], L, seg)
 
 
-def associate(lines: np.ndarray, segments: np.ndarray | None = None,
-              predicted_lines: np.ndarray | None = None,
-              config: AssociationConfig | None = None,
-              scores: np.ndarray | None = None) -> Association:
-    """Pick the shaft's edges among candidates (see the module doc).
-
-    lines: (N, 2) (rho, theta); segments: (N, 4) or None; predicted_lines:
-    (P, 2) (usually P = 2) or None; scores: (N,) candidate strengths used in
-    place of segment lengths (e.g. Hough votes) when segments are None.
-    """
-    cfg = config or AssociationConfig()
-    L = np.asarray(lines, float).reshape(-1, 2)
-    seg, mid, length = _geometry(L, segments)
-    if length is None:
-        length = np.ones(len(L)) if scores is None else np.asarray(scores, float).ravel()
-    ok = np.all(np.isfinite(L), axis=1) & np.isfinite(length)
-    if mid is not None:
-        ok &= np.all(np.isfinite(mid), axis=1)
-    if len(L) == 0 or not ok.any():
+def _gated(L, seg, mid, length, ok, predicted_lines, cfg) -> Association:
+    """Candidates matched to the predicted edges (module doc): gated by angle and
+    offset, assigned by cost (jointly for two predicted edges)."""
+    pred = np.asarray(predicted_lines, float).reshape(-1, 2)
+    pid = np.flatnonzero(np.all(np.isfinite(pred), axis=1))
+    if len(pid) == 0:
         return Association()
+    pr = pred[pid]
+    drho, dth = line_difference(L[:, None, 0], L[:, None, 1], pr[None, :, 0], pr[None, :, 1])
+    if mid is not None:  # signed offset of each candidate's midpoint from each predicted line
+        sig = (np.cos(pr[None, :, 1]) * mid[:, None, 0] + np.sin(pr[None, :, 1]) * mid[:, None, 1]
+               - pr[None, :, 0])
+    else:
+        sig = drho
+    off = np.abs(sig)
+    dth = np.abs(dth)
+    gated = (dth <= cfg.max_angle) & (off <= cfg.max_offset) & ok[:, None]
+    lmax = max(float(np.max(length[ok])), 1e-9)
+    cost = (dth / cfg.max_angle + off / cfg.max_offset
+            + cfg.length_weight * (1.0 - np.clip(length / lmax, 0.0, 1.0))[:, None])
+    cost = np.where(gated, np.nan_to_num(cost, nan=_BIG), _BIG)
+    if len(pid) == 2 and cfg.pair_weight > 0:
+        return _best_pair(cost, gated, sig, pr, pid, cfg, L, seg)
+    rows, cols = linear_sum_assignment(cost.T)  # rows: predicted, cols: candidates
+    keep = gated[cols, rows]
+    return _result(cols[keep], pid[rows[keep]], L, seg)
 
-    if predicted_lines is not None:
-        pred = np.asarray(predicted_lines, float).reshape(-1, 2)
-        pid = np.flatnonzero(np.all(np.isfinite(pred), axis=1))
-        if len(pid) == 0:
-            return Association()
-        pr = pred[pid]
-        drho, dth = line_difference(L[:, None, 0], L[:, None, 1], pr[None, :, 0], pr[None, :, 1])
-        if mid is not None:
-            off = np.abs(np.cos(pr[None, :, 1]) * mid[:, None, 0]
-                         + np.sin(pr[None, :, 1]) * mid[:, None, 1] - pr[None, :, 0])
-        else:
-            off = np.abs(drho)
-        if mid is not None:
-            sig = (np.cos(pr[None, :, 1]) * mid[:, None, 0] + np.sin(pr[None, :, 1]) * mid[:, None, 1]
-                   - pr[None, :, 0])
-        else:
-            sig = drho
-        off = np.abs(sig)
-        dth = np.abs(dth)
-        gated = (dth <= cfg.max_angle) & (off <= cfg.max_offset) & ok[:, None]
-        lmax = max(float(np.max(length[ok])), 1e-9)
-        cost = (dth / cfg.max_angle + off / cfg.max_offset
-                + cfg.length_weight * (1.0 - np.clip(length / lmax, 0.0, 1.0))[:, None])
-        cost = np.where(gated, np.nan_to_num(cost, nan=_BIG), _BIG)
-        if len(pid) == 2 and cfg.pair_weight > 0:
-            return _best_pair(cost, gated, sig, pr, pid, cfg, L, seg)
-        rows, cols = linear_sum_assignment(cost.T)  # rows: predicted, cols: candidates
-        keep = gated[cols, rows]
-        return _result(cols[keep], pid[rows[keep]], L, seg)
 
-    # ---- no prediction: best pair of near-parallel long segments ----------------
-    cand = np.flatnonzero(ok & (length >= cfg.min_length)) if seg is not None else np.flatnonzero(ok)
-    if len(cand) < 2:
-        return Association()
+def _pair_ok(L, seg, mid, length, cand, cfg) -> np.ndarray:
+    """(n, n) bool over candidates ``cand``: near-parallel, a shaft's width apart and
+    (with segments) overlapping along each other."""
     Lc, lc = L[cand], length[cand]
     _, dth = line_difference(Lc[:, None, 0], Lc[:, None, 1], Lc[None, :, 0], Lc[None, :, 1])
     good = np.abs(dth) <= cfg.parallel_tol
@@ -209,8 +185,19 @@ def associate(lines: np.ndarray, segments: np.ndarray | None = None,
         width = np.abs(drho)
         good &= (width >= cfg.min_width) & (width <= cfg.max_width)
     np.fill_diagonal(good, False)
+    return good
+
+
+def _unpredicted(L, seg, mid, length, ok, cfg) -> Association:
+    """No prediction: the best pair of near-parallel long candidates, labelled 0, 1
+    in the order of their offsets along the first one's normal."""
+    cand = np.flatnonzero(ok & (length >= cfg.min_length)) if seg is not None else np.flatnonzero(ok)
+    if len(cand) < 2:
+        return Association()
+    good = _pair_ok(L, seg, mid, length, cand, cfg)
     if not good.any():
         return Association()
+    lc = length[cand]
     score = np.where(good, lc[:, None] + lc[None, :], -np.inf)
     i, j = np.unravel_index(int(np.argmax(score)), score.shape)
     a, b = int(cand[i]), int(cand[j])
@@ -223,3 +210,28 @@ def associate(lines: np.ndarray, segments: np.ndarray | None = None,
         oa, ob = L[a, 0], L[a, 0] + line_difference(L[b, 0], L[b, 1], L[a, 0], L[a, 1])[0]
     pair = (a, b) if oa <= ob else (b, a)
     return _result(list(pair), [0, 1], L, seg)
+
+
+def associate(lines: np.ndarray, segments: np.ndarray | None = None,
+              predicted_lines: np.ndarray | None = None,
+              config: AssociationConfig | None = None,
+              scores: np.ndarray | None = None) -> Association:
+    """Pick the shaft's edges among candidates (see the module doc).
+
+    lines: (N, 2) (rho, theta); segments: (N, 4) or None; predicted_lines:
+    (P, 2) (usually P = 2) or None; scores: (N,) candidate strengths used in
+    place of segment lengths (e.g. Hough votes) when segments are None.
+    """
+    cfg = config or AssociationConfig()
+    L = np.asarray(lines, float).reshape(-1, 2)
+    seg, mid, length = _geometry(L, segments)
+    if length is None:
+        length = np.ones(len(L)) if scores is None else np.asarray(scores, float).ravel()
+    ok = np.all(np.isfinite(L), axis=1) & np.isfinite(length)
+    if mid is not None:
+        ok &= np.all(np.isfinite(mid), axis=1)
+    if len(L) == 0 or not ok.any():
+        return Association()
+    if predicted_lines is not None:
+        return _gated(L, seg, mid, length, ok, predicted_lines, cfg)
+    return _unpredicted(L, seg, mid, length, ok, cfg)

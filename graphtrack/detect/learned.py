@@ -1,10 +1,8 @@
 """The learned detector: a tiny line / junction network at 1/4 scale, on one CPU core.
 
-The method detects the shaft's silhouette edges with SOLD2 (segments + a
-line heatmap H) because Canny fails in low light, at 1-2 frames/s. Here a
-small fully-convolutional net (:mod:`graphtrack.detect.learned_net`) trained
-on domain-randomised simulated frames (:mod:`graphtrack.training`)
-predicts the same two outputs at camera rate:
+A small fully-convolutional net (:mod:`graphtrack.detect.learned_net`), trained
+on domain-randomised simulated frames (:mod:`graphtrack.training`), predicts
+SOLD2's two outputs, segments and a line heatmap H, at camera rate:
 
 1. the undistorted BGR frame (H x W) is resized by ``scale`` (1/4: 540x960 ->
    135x240, cv2.INTER_AREA) and fed to the net, which returns the line
@@ -14,25 +12,23 @@ predicts the same two outputs at camera rate:
    refined by a heatmap-weighted total-least-squares line fit to the
    above-threshold pixels within ``fit_band`` px of it, grown along the fitted
    line over all such pixels (split at gaps > ``max_gap``: the run holding the
-   candidate's centre) and refitted; its extent is that of its supporting pixels, and each endpoint snaps to a junction peak (3x3
-   local maximum of J >= junction_threshold) within ``snap`` px of it along
-   the line; near-duplicates (angle < 0.05 rad, offset < 2 px, overlapping)
-   keep the best supported one;
+   candidate's centre) and refitted; its extent is that of its supporting
+   pixels, and each endpoint snaps to a junction peak (3x3 local maximum of
+   J >= junction_threshold) within ``snap`` px of it along the line;
+   near-duplicates (angle < 0.05 rad, offset < 2 px, overlapping) keep the
+   best supported one;
 3. segments go back to full-resolution undistorted pixels,
    x = (x_s + 0.5) / scale_x - 0.5 (pixel centres, OpenCV's resize
    convention), and H is L upsampled to H x W with cv2.INTER_LINEAR (the same
-   convention, ~1 ms), so the pixel sets of :mod:`graphtrack.detect.pixel_sets`
+   convention), so the pixel sets of :mod:`graphtrack.detect.pixel_sets`
    index it at full resolution;
 4. the shaft edges come from the shared association
    (:func:`graphtrack.detect.association.associate`) and the markers from the
    shared colour detector (:func:`graphtrack.detect.markers.detect_markers`);
 5. each associated shaft segment is moved onto the image's edge at full
    resolution (:mod:`graphtrack.detect.subpixel`; ``subpixel=False`` keeps
-   the heatmap's segments): the 1/4-scale heatmap places an edge to a pixel
-   or two, the image's gradient to a fraction of one. On two tuning
-   recordings (100 frames each, gated by the true lines) the shaft lines'
-   median offset fell from 1.04 to 0.03 px (structured) and from 0.67 to
-   0.14 px (tissue), for ~2 ms per frame. H is left as the net made it.
+   the heatmap's segments); only the moved segments get new lines. H is left
+   as the net made it.
 
 Weights: ``graphtrack/data/learned_detector.pt`` (shipped), or ``weights=FILE``
 (from ``graphtrack train``), loaded with ``torch.load(weights_only=True)``; a
@@ -41,6 +37,9 @@ raises :class:`graphtrack.errors.InputError` naming the file.
 
 Uniform frames (black, white: pixel standard deviation < ``min_contrast``) and
 frames too small for the net (reduced side < 8 px) give an empty Detection.
+
+Why a learned detector, and measurements: docs/decisions/learned-detector.md,
+docs/decisions/subpixel-edges.md.
 """
 from __future__ import annotations
 
@@ -50,9 +49,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from graphtrack.detect.association import AssociationConfig, associate
 from graphtrack.detect.base import Detection
+from graphtrack.detect.learned_net import ARCH, LineNet
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.subpixel import SubpixelConfig, refine_segments
 from graphtrack.errors import InputError
@@ -78,10 +79,6 @@ class ExtractConfig:
 
 def load_weights(path: str | Path | None = None):
     """The fused (inference) LineNet from a weights file; InputError when unusable."""
-    import torch
-
-    from graphtrack.detect.learned_net import ARCH, LineNet
-
     path = Path(path) if path is not None else DEFAULT_WEIGHTS
     if not path.is_file():
         raise InputError(f"{path}: weights file not found")
@@ -140,6 +137,76 @@ def _junction_peaks(J: np.ndarray, thr: float) -> np.ndarray:
     return np.stack([xs, ys], 1).astype(float)
 
 
+def _grow_and_fit(P: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, cfg: ExtractConfig):
+    """One Hough candidate a -> b refined (module doc, step 2): (centroid c, unit
+    direction u, supporting pixels' indices into P) of the refitted line, or None."""
+    d = b - a
+    n = np.hypot(*d)
+    if n < 1e-9:
+        return None
+    d /= n
+    nrm = np.array([-d[1], d[0]])
+    r = (P - a) @ nrm
+    t = (P - a) @ d
+    sel = (np.abs(r) <= cfg.fit_band) & (t >= -cfg.max_gap) & (t <= n + cfg.max_gap)
+    if sel.sum() < cfg.min_support:
+        return None
+    c, u = _tls(P[sel], w[sel])
+    # grow along the fitted line: all pixels in the band, split at gaps,
+    # keep the run holding the candidate's centre (else the longest), refit
+    X = P - c
+    band = np.abs(X @ np.array([-u[1], u[0]])) <= cfg.fit_band
+    tq = X[band] @ u
+    order = np.argsort(tq)
+    ts = tq[order]
+    gaps = np.flatnonzero(np.diff(ts) > cfg.max_gap)
+    starts = np.r_[0, gaps + 1]
+    ends = np.r_[gaps, len(ts) - 1]
+    tc = (0.5 * (a + b) - c) @ u
+    hold = np.flatnonzero((ts[starts] <= tc) & (ts[ends] >= tc))
+    k = int(hold[0]) if len(hold) else int(np.argmax(ts[ends] - ts[starts]))
+    cnt = ends[k] - starts[k] + 1
+    if ts[ends[k]] - ts[starts[k]] < cfg.min_length or cnt < cfg.min_support:
+        return None
+    run = np.flatnonzero(band)[order[starts[k]:ends[k] + 1]]
+    c, u = _tls(P[run], w[run])
+    return c, u, run
+
+
+def _snap(e: np.ndarray, c: np.ndarray, u: np.ndarray, peaks: np.ndarray, cfg: ExtractConfig) -> np.ndarray:
+    """Endpoint e on the line (c, u) moved to the projection of the nearest junction
+    peak within ``snap`` px (and ``fit_band`` + 0.5 px of the line); else e."""
+    dp = peaks - e
+    along = dp @ u
+    perp = np.abs(dp @ np.array([-u[1], u[0]]))
+    ok = (np.hypot(along, perp) <= cfg.snap) & (perp <= cfg.fit_band + 0.5)
+    if not ok.any():
+        return e
+    j = np.flatnonzero(ok)[np.argmin(np.hypot(along, perp)[ok])]
+    return c + ((peaks[j] - c) @ u) * u  # project onto the fitted line
+
+
+def _duplicate(S: np.ndarray, i: int, keep: list[int]) -> bool:
+    """Segment i near-duplicates a kept one: angle < 0.05 rad, midpoint < 2 px from
+    its line, overlapping by more than 0.3 of the shorter."""
+    a, b = S[i, :2], S[i, 2:]
+    mid = 0.5 * (a + b)
+    di = (b - a) / max(np.hypot(*(b - a)), 1e-9)
+    for j in keep:
+        aj, bj = S[j, :2], S[j, 2:]
+        dj = (bj - aj) / max(np.hypot(*(bj - aj)), 1e-9)
+        if abs(di @ dj) < np.cos(0.05):
+            continue
+        nj = np.array([-dj[1], dj[0]])
+        if abs((mid - aj) @ nj) > 2.0:
+            continue
+        ta, tb = sorted(((a - aj) @ dj, (b - aj) @ dj))
+        lj = np.hypot(*(bj - aj))
+        if min(tb, lj) - max(ta, 0.0) > 0.3 * min(tb - ta, lj):
+            return True
+    return False
+
+
 def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
                      config: ExtractConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Segments (S, 4) (x1, y1, x2, y2) and their support (S,) from a line
@@ -167,57 +234,16 @@ def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
         else np.zeros((0, 2))
     out, support = [], []
     for x1, y1, x2, y2 in cand:
-        a, b = np.array([x1, y1]), np.array([x2, y2])
-        d = b - a
-        n = np.hypot(*d)
-        if n < 1e-9:
+        fit = _grow_and_fit(P, w, np.array([x1, y1]), np.array([x2, y2]), cfg)
+        if fit is None:
             continue
-        d /= n
-        nrm = np.array([-d[1], d[0]])
-        r = (P - a) @ nrm
-        t = (P - a) @ d
-        sel = (np.abs(r) <= cfg.fit_band) & (t >= -cfg.max_gap) & (t <= n + cfg.max_gap)
-        if sel.sum() < cfg.min_support:
-            continue
-        c, u = _tls(P[sel], w[sel])
-        # grow along the fitted line: all pixels in the band, split at gaps,
-        # keep the run holding the candidate's centre (else the longest), refit
-        X = P - c
-        band = np.abs(X @ np.array([-u[1], u[0]])) <= cfg.fit_band
-        tq = X[band] @ u
-        order = np.argsort(tq)
-        ts = tq[order]
-        gaps = np.flatnonzero(np.diff(ts) > cfg.max_gap)
-        starts = np.r_[0, gaps + 1]
-        ends = np.r_[gaps, len(ts) - 1]
-        tc = (0.5 * (a + b) - c) @ u
-        hold = np.flatnonzero((ts[starts] <= tc) & (ts[ends] >= tc))
-        k = int(hold[0]) if len(hold) else int(np.argmax(ts[ends] - ts[starts]))
-        cnt = ends[k] - starts[k] + 1
-        if ts[ends[k]] - ts[starts[k]] < cfg.min_length or cnt < cfg.min_support:
-            continue
-        run = np.flatnonzero(band)[order[starts[k]:ends[k] + 1]]
-        Q, wq = P[run], w[run]
-        c, u = _tls(Q, wq)
-        tq = (Q - c) @ u
-        t0, t1 = float(tq.min()), float(tq.max())
-        e0, e1 = c + t0 * u, c + t1 * u
+        c, u, run = fit
+        tq = (P[run] - c) @ u
+        e0, e1 = c + float(tq.min()) * u, c + float(tq.max()) * u
         if len(peaks):
-            for which in (0, 1):
-                e = e0 if which == 0 else e1
-                dp = peaks - e
-                along = dp @ u
-                perp = np.abs(dp @ np.array([-u[1], u[0]]))
-                ok = (np.hypot(along, perp) <= cfg.snap) & (perp <= cfg.fit_band + 0.5)
-                if ok.any():
-                    j = np.flatnonzero(ok)[np.argmin(np.hypot(along, perp)[ok])]
-                    e_new = c + ((peaks[j] - c) @ u) * u  # project onto the fitted line
-                    if which == 0:
-                        e0 = e_new
-                    else:
-                        e1 = e_new
+            e0, e1 = _snap(e0, c, u, peaks, cfg), _snap(e1, c, u, peaks, cfg)
         out.append(np.r_[e0, e1])
-        support.append(float(wq.sum()))
+        support.append(float(w[run].sum()))
     if not out:
         return empty
     S = np.array(out)
@@ -226,24 +252,7 @@ def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
     S, sup = S[order], sup[order]
     keep: list[int] = []
     for i in range(len(S)):
-        a, b = S[i, :2], S[i, 2:]
-        mid = 0.5 * (a + b)
-        di = (b - a) / max(np.hypot(*(b - a)), 1e-9)
-        dup = False
-        for j in keep:
-            aj, bj = S[j, :2], S[j, 2:]
-            dj = (bj - aj) / max(np.hypot(*(bj - aj)), 1e-9)
-            if abs(di @ dj) < np.cos(0.05):
-                continue
-            nj = np.array([-dj[1], dj[0]])
-            if abs((mid - aj) @ nj) > 2.0:
-                continue
-            ta, tb = sorted(((a - aj) @ dj, (b - aj) @ dj))
-            lj = np.hypot(*(bj - aj))
-            if min(tb, lj) - max(ta, 0.0) > 0.3 * min(tb - ta, lj):
-                dup = True
-                break
-        if not dup:
+        if not _duplicate(S, i, keep):
             keep.append(i)
         if len(keep) >= cfg.max_segments:
             break
@@ -259,8 +268,6 @@ class LearnedDetector:
                  extract: ExtractConfig | None = None, association: AssociationConfig | None = None,
                  marker_config: MarkerConfig | None = None, min_contrast: float = 2.0,
                  threads: int | None = None, subpixel: bool | SubpixelConfig = True):
-        import torch
-
         self.net = load_weights(weights)
         self.scale = float(scale)
         self.markers = markers
@@ -271,7 +278,6 @@ class LearnedDetector:
         self.subpixel = subpixel if isinstance(subpixel, SubpixelConfig) else (SubpixelConfig() if subpixel else None)
         if threads is not None:
             torch.set_num_threads(int(threads))
-        self._torch = torch
 
     def heatmaps(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(L, J) at the reduced scale for an undistorted BGR frame, or None
@@ -290,7 +296,6 @@ class LearnedDetector:
         small = cv2.resize(img[:, :, :3], (ws, hs), interpolation=cv2.INTER_AREA)
         if float(small.std()) < self.min_contrast:
             return None
-        torch = self._torch
         x = torch.from_numpy(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).permute(2, 0, 1)[None].float() / 255.0
         with torch.inference_mode():
             y = torch.sigmoid(self.net(x))[0].numpy()

@@ -27,6 +27,8 @@ resizes to the skip connections' sizes, so no padding is needed).
 """
 from __future__ import annotations
 
+import copy
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -81,8 +83,6 @@ class LineNet(nn.Module):
     @torch.no_grad()
     def fused(self) -> "LineNet":
         """An inference copy with every BatchNorm folded into its conv (eval only)."""
-        import copy
-
         net = copy.deepcopy(self).eval()
         for m in net.modules():
             if isinstance(m, ConvBNReLU) and isinstance(m[1], nn.BatchNorm2d):

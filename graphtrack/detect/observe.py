@@ -31,12 +31,9 @@ as H = 1 everywhere: the sets are then the full discs / capsules of radius
 alpha around the endpoints / segment (clipped to x, y >= 0). Markers are the
 detection's marker centroids when ``use_markers`` (else empty).
 
-``max_pixels`` caps each edge's set (pixel models and the RANSAC input of the
--polar ones) by keeping evenly spaced pixels of it. The pixel model treats
-pixels as independent, so thousands of pixels along one edge (Canny's edge map
-inside a 10 px band gives ~1500) make the likelihood far sharper than the
-detection deserves and drown the marker term; 250 per edge keeps the
-estimators' pixel term comparable across detectors, and bounds their cost.
+``max_pixels`` (default ``MAX_PIXELS`` = 250) caps each edge's set (pixel
+models and the RANSAC input of the -polar ones) by keeping evenly spaced pixels
+of it; why: docs/decisions/pixel-set-thinning.md.
 """
 from __future__ import annotations
 

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 
 from graphtrack.detect.association import AssociationConfig, associate
 from graphtrack.detect.base import Detection
@@ -38,8 +39,7 @@ from graphtrack.geometry.lines import line_through
 def build_sold2(weights: str | Path | None, config=None):
     """kornia SOLD2_detector (eval) with the state dict of ``weights`` loaded;
     ``weights=None`` keeps the random initialisation (tests only)."""
-    import torch
-    from kornia.feature import SOLD2_detector
+    from kornia.feature import SOLD2_detector  # lazy: kornia takes seconds to import, SOLD2 only
 
     det = SOLD2_detector(pretrained=False, config=config)
     if weights is None:
@@ -89,8 +89,6 @@ class Sold2Detector:
                association: AssociationConfig | None = None) -> Detection:
         """Detect on an undistorted BGR uint8 frame; ``predicted_lines`` (2, 2) gate the
         association, ``association`` overrides the configured gates for this call."""
-        import torch
-
         t0 = time.perf_counter()
         img = np.asarray(image)
         if img.ndim == 3 and img.shape[2] >= 3 and img.dtype == np.uint8:

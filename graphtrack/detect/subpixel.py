@@ -1,10 +1,7 @@
 """Sub-pixel refinement of a detected shaft edge on the full-resolution image.
 
-The learned detector finds the shaft edges on a 1/4-scale heatmap, so its
-segments are good to a pixel or two of the full-resolution image: on the
-benchmark recordings their lines were 1.2 px and 0.19 deg off the true limbs
-(median; Canny's sub-pixel lines 0.6 px). The silhouette itself is sharp in
-the image, so each associated segment is moved onto the image's edge:
+Each associated segment of the learned detector (found on a 1/4-scale
+heatmap, good to a pixel or two) is moved onto the image's edge:
 
 1. the grey image (Gaussian blur ``blur`` px, 3x3 Sobel / 8: grey levels per
    px) gives the gradient g, only in the segments' bounding box;
@@ -26,16 +23,13 @@ the image, so each associated segment is moved onto the image's edge:
 
 A second edge inside the window (the black border an undistortion leaves, a
 stripe, a tissue fold) makes a row ambiguous, and an edge with many such rows
-is kept as detected (:func:`fit_edge`); with the defaults this holds for a
-black border 2.5 px outside the edge and for a stronger step or a bright
-stripe 4 px away (``tests/test_detect_subpixel.py``). Closer parallel edges
-merge under the camera's and the gradient's blur into one peak and the
-refined line follows the stronger (a step 3.5 px outside, 2.5 times the
-edge's contrast, pulled it 3.4 px): no gradient-peak locator tells them
-apart, and the learned detector's 1-2 px cannot either.
+is kept as detected (:func:`fit_edge`). Parallel edges closer than the
+camera's and the gradient's blur merge into one peak and the refined line
+follows the stronger: a known limit of any gradient-peak locator.
 
 Coordinates are undistorted full-resolution pixels (pixel centres at
-integers, as everywhere in graphtrack).
+integers, as everywhere in graphtrack). Decision and measurements:
+docs/decisions/subpixel-edges.md.
 """
 from __future__ import annotations
 

@@ -6,26 +6,20 @@ If the estimator is consistent, each NEES_t ~ chi2(6) and the mean of R
 INDEPENDENT values lies in the two-sided 95 % band chi2.ppf([0.025, 0.975], 6R) / R
 (R = 200: [5.53, 6.49]).
 
-Why independent runs, not one long sequence: a tracker's errors at
-consecutive frames are strongly correlated (the state moves by the motion
-model's small steps), so the time average of one sequence has a spread
-several times that of R independent values, and the band does not apply to
-it. Measured with the fixed-lag smoother on the synthetic scene (1 s lag,
-frames 60-299): the per-sequence mean NEES over 12 sequences was 5.99 on
-average, but individual sequences ranged 4.6-8.4 (sd 1.03 against the 0.22
-the band assumes: ~11 effectively independent values per 240 frames). So
-each run here contributes ONE value, at a frame drawn uniformly from
-[first, last), with its own seed (pixel and marker noise, random walk of the
-true E) and, optionally, its own hand-eye error drawn from a prior.
+Each run contributes ONE value, at a frame drawn uniformly from [first, last),
+with its own seed (pixel and marker noise, random walk of the true E) and,
+optionally, its own hand-eye error drawn from a prior: consecutive frames'
+errors are correlated, so the band does not apply to one sequence's time
+average (docs/decisions/nees-over-independent-runs.md).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 from tqdm import tqdm
 
-from factors.synthetic import make_scene, sequence
 from graphtrack.detect.base import POLAR_MODELS, Observation
 from graphtrack.estimate.graph import left_error
 from graphtrack.io.context import TrackingContext
@@ -47,33 +41,32 @@ class NeesResult:
 
 def nees_band(runs: int, dof: int = 6, level: float = 0.95) -> tuple[float, float]:
     """Two-sided band of the mean of ``runs`` independent chi2(dof) values."""
-    from scipy.stats import chi2
-
     a = 0.5 * (1.0 - level)
     lo, hi = chi2.ppf([a, 1.0 - a], dof * runs) / runs
     return float(lo), float(hi)
 
 
-def monte_carlo_nees(make, runs: int = 200, first: int = 60, last: int = 200, seed: int = 0,
+def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int = 200, seed: int = 0,
                      prior_std=None, walk_sigma=(2.5e-5, 1e-4), model: str = "line-intensities",
                      progress: bool = False, **observe_kw) -> NeesResult:
     """Monte-Carlo NEES of the estimators built by ``make(ctx)`` (a fresh one per run).
 
-    Run r: a synthetic sequence (:func:`factors.synthetic.sequence`) with seed
-    ``seed + 1 + r``, the sequence's default hand-eye error (4.1 mm / 1.6 deg)
+    Run r: ``sequence(n, seed=..., walk_sigma=..., **observe_kw)`` -> (robot,
+    camera, E0, frames), the synthetic world's
+    (:func:`graphtrack.sim.synthetic.sequence`; passed in, as eval sits below
+    sim), with n = k_r + 1 and seed ``seed + 1 + r``, the sequence's default hand-eye error (4.1 mm / 1.6 deg)
     or, with ``prior_std`` = (m, rad), one drawn from N(0, diag(prior_std^2)),
     the true E following the random walk ``walk_sigma`` (m, rad per frame),
     observed with ``observe_kw`` (pixel_noise, marker_noise, pixels_per_edge,
     ...); scored at one frame k_r ~ U[first, last).
     """
-    scene = make_scene()
     pick = np.random.default_rng(seed)
     values = []
     for r in tqdm(range(runs), desc="NEES runs", disable=not progress, leave=False):
         k_r = int(pick.integers(first, last))
         if prior_std is not None:
             observe_kw["handeye_error"] = pick.standard_normal(6) * np.repeat(np.asarray(prior_std, float), 3)
-        robot, cam, E0, frames = sequence(k_r + 1, seed=seed + 1 + r, scene=scene,
+        robot, cam, E0, frames = sequence(k_r + 1, seed=seed + 1 + r,
                                           walk_sigma=walk_sigma, **observe_kw)
         est = make(TrackingContext(robot, cam, E0))
         for f in frames:

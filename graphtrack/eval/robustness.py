@@ -79,9 +79,13 @@ def worst_window_excess(err: np.ndarray, baseline: np.ndarray, window: int = WIN
 
 def recording_figures(err: np.ndarray, baseline: np.ndarray, disturbances: list[tuple[int, int]],
                       threshold: float = CONVERGED_PX, window: int = WINDOW) -> dict:
-    """The per-recording figures: mean error, start-up, re-acquisitions, worst window excess."""
+    """The per-recording figures: mean error, start-up, re-acquisitions (with the length of
+    the segment each was judged on), worst window excess."""
     e = np.asarray(err, float)
+    segs = segments(len(e), disturbances)
     return {"mean_px": float(np.nanmean(e)) if np.isfinite(e).any() else float("nan"),
             "startup_frames": startup_frames(e, disturbances, threshold),
+            "startup_segment": segs[0][1] if segs and segs[0][0] == 0 else 0,
             "reacquire_frames": reacquisition_frames(e, disturbances, threshold),
+            "reacquire_segments": [b - a for a, b in segs if a > 0],
             "worst_window_excess_px": worst_window_excess(e, baseline, window)}

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import yaml
 
 from graphtrack.errors import InputError, is_number, read_text
 
@@ -216,8 +217,6 @@ def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
 
 def load_calibration(path: str | Path) -> Calibration:
     """Read camera_calibration.yaml (format doc); raise InputError naming file and key."""
-    import yaml
-
     path = Path(path)
     try:
         doc = yaml.safe_load(read_text(path))
@@ -252,8 +251,6 @@ def load_calibration(path: str | Path) -> Calibration:
 
 def save_calibration(path: str | Path, calib: Calibration) -> None:
     """Write camera_calibration.yaml in the format doc's layout (T in mm)."""
-    import yaml
-
     cam = calib.left
     doc = {"ImageSize": [int(cam.height), int(cam.width)],
            "K1": {"data": [float(v) for v in cam.K.ravel()]},

@@ -8,10 +8,8 @@ r), so the side facing the camera covers more pixels than the side turning
 away, and near a silhouette part of it is hidden. For a disc seen at an angle
 gamma from face-on the centroid sits about 1.5 <delta^2> r sin(gamma) towards
 the face-on meridian (delta = s / r, the angle a surface point sits from the
-centre; <delta^2> = R_m^2 / (4 r^2)): 1.1 mm discs on a shaft of 4 mm radius at 10 cm
-move by up to ~1 px, more when partly hidden. On eight simulated tuning
-recordings the learned detector's centroids were 0.6-2.5 px RMS from pi(P_k)
-and 0.2-0.4 px from the centroid below.
+centre; <delta^2> = R_m^2 / (4 r^2)), more when partly hidden. Decision and
+measurements: docs/decisions/painted-disc-markers.md.
 
 Surface samples. The disc is cut into the cells of an n x n grid over its
 bounding square, in surface coordinates (arc length s around the shaft, h along

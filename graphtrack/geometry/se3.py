@@ -49,6 +49,34 @@ def so3_exp(w: np.ndarray) -> np.ndarray:
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def so3_exp_batch(w: np.ndarray) -> np.ndarray:
+    """:func:`so3_exp` of axis-angle rows w (N, 3) (rad), components first: (3, 3, N).
+
+    R[i, j] is an (N,) array, the layout of vectorised per-hypothesis arithmetic
+    (the particle filter's projections). Written out entry by entry,
+    [w]x^2 = w w^T - t^2 I, so R = I + A [w]x + B (w w^T - t^2 I) with
+    A = sin t / t, B = (1 - cos t) / t^2, t = |w|; below t^2 = 1e-8 the
+    series A = 1 - t^2/6, B = 1/2 - t^2/24 (the next terms are below double
+    precision there), so w = 0 gives I with no NaN.
+    """
+    wx, wy, wz = np.ascontiguousarray(np.asarray(w, float).reshape(-1, 3).T)
+    t2 = wx * wx + wy * wy + wz * wz
+    small = t2 < 1e-8
+    t = np.sqrt(np.where(small, 1.0, t2))
+    A = np.where(small, 1.0 - t2 / 6.0, np.sin(t) / t)
+    B = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(t)) / (t * t))
+    bxy, bxz, byz = B * wx * wy, B * wx * wz, B * wy * wz
+    ax, ay, az = A * wx, A * wy, A * wz
+    R = np.empty((3, 3, len(wx)))
+    R[0, 0] = 1.0 + B * (wx * wx - t2)
+    R[1, 1] = 1.0 + B * (wy * wy - t2)
+    R[2, 2] = 1.0 + B * (wz * wz - t2)
+    R[0, 1], R[1, 0] = bxy - az, bxy + az
+    R[0, 2], R[2, 0] = bxz + ay, bxz - ay
+    R[1, 2], R[2, 1] = byz - ax, byz + ax
+    return R
+
+
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`so3_exp`, returning w with |w| in [0, pi].
 
@@ -170,7 +198,7 @@ def project_to_so3(M: np.ndarray) -> np.ndarray:
 
 def to_pose3(T: np.ndarray):
     """4x4 numpy -> gtsam.Pose3."""
-    import gtsam
+    import gtsam  # lazy: geometry is below every layer; only the factor graphs may load gtsam
 
     return gtsam.Pose3(np.asarray(T, dtype=float))
 

@@ -2,7 +2,8 @@
 is :mod:`graphtrack.io.bag_write`.
 
 Reading (ROS 1 ``.bag`` files and ROS 2 bag folders, via ``rosbags``) is
-streamed in two passes so that a 10 GB bag never sits in memory:
+streamed in two passes so that a 10 GB bag never sits in memory (images decoded
+by :mod:`graphtrack.io.image_msg`):
 
 1. the small joint and jaw messages (``/dvrk/PSM1/state_joint_current`` and
    ``/dvrk/PSM1/state_jaw_current``, or dVRK 2.x's ``/PSM1/measured_js`` and
@@ -38,24 +39,24 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-import cv2
 import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
 
 from graphtrack.errors import FrameError, InputError
 from graphtrack.io.bag1scan import Bag1Scan
 from graphtrack.io.frame import Frame
+from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE, decode_image, noise_span
 from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
 
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
 RIGHT_IMAGE_TOPIC = "/stereo/right/image"
 RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
-IMAGE_TYPE = "sensor_msgs/msg/Image"
-COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
 
 
-# -- stamps and image decoding -----------------------------------------------------------
+# -- stamps -----------------------------------------------------------
 def to_ns(stamp: float) -> int:
     """Seconds (float) -> integer nanoseconds, exact to the float's resolution."""
     sec = math.floor(stamp)
@@ -67,64 +68,6 @@ def _header_ns(msg, fallback_ns: int) -> int:
     st = msg.header.stamp
     ns = int(st.sec) * 1_000_000_000 + int(st.nanosec)
     return ns if ns != 0 else int(fallback_ns)
-
-
-def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
-    """sensor_msgs Image / CompressedImage -> H x W x 3 uint8 BGR (a fresh, writable array).
-
-    Raises ValueError for corrupt data (the frame is skipped) and InputError for
-    an encoding graphtrack does not read (every frame would fail alike).
-    """
-    if msgtype == COMPRESSED_TYPE:
-        buf = np.asarray(msg.data, dtype=np.uint8).ravel()
-        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
-        if img is None:
-            raise ValueError(f"compressed image ({msg.format!r}) does not decode")
-        return img
-    enc = msg.encoding.lower()
-    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "8uc3": 3, "rgba8": 4, "bgra8": 4}
-    if enc not in channels:
-        raise InputError(f"{where}: image encoding {msg.encoding!r} is not supported "
-                         "(rgb8, bgr8, mono8, rgba8, bgra8)")
-    h, w, c, step = int(msg.height), int(msg.width), channels[enc], int(msg.step)
-    data = np.asarray(msg.data, dtype=np.uint8).ravel()
-    if h <= 0 or w <= 0 or step < w * c or data.size < step * (h - 1) + w * c:
-        raise ValueError(f"raw image data has {data.size} bytes, too few for {w}x{h} {enc} (step {step})")
-    if data.size < step * h:
-        data = np.concatenate([data, np.zeros(step * h - data.size, np.uint8)])
-    img = data[: step * h].reshape(h, step)[:, : w * c].reshape(h, w, c)
-    conv = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR,
-            "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR}.get(enc)
-    return cv2.cvtColor(img, conv) if conv is not None else img.copy()
-
-
-#: noise_span's window (px) and threshold (mean |difference| of neighbouring green values)
-NOISE_WINDOW_PX, NOISE_LEVEL = 512, 40.0
-
-
-def noise_span(image: np.ndarray) -> str | None:
-    """Where a raw image holds random bytes (damaged bag data), or None.
-
-    Raw messages carry no checksum, so overwritten bytes decode as an image. In
-    row-major pixel order, every window of ``NOISE_WINDOW_PX`` pixels gets the
-    mean |g[i+1] - g[i]| of its green values at every 4th i: uniform random
-    bytes give ~85, camera images (smooth at the pixel scale) well under 20; a
-    window above ``NOISE_LEVEL`` in an image whose median window is under half
-    of it is damage (an image noisy all over is taken as a picture). Any run of
-    >= 2 windows of bytes (3 KB of rgb8) covers one whole window.
-    """
-    g = np.ascontiguousarray(image[..., 1] if image.ndim == 3 else image).reshape(-1)
-    n = (g.size // NOISE_WINDOW_PX) * NOISE_WINDOW_PX
-    if n == 0:
-        return None
-    g = g[:n].reshape(-1, NOISE_WINDOW_PX)
-    d = np.abs(g[:, 0::4].astype(np.int16) - g[:, 1::4]).mean(axis=1)
-    bad = np.flatnonzero(d > NOISE_LEVEL)
-    if bad.size == 0 or np.median(d) > NOISE_LEVEL / 2:   # noisy all over: a picture of noise
-        return None
-    w = image.shape[1]
-    r0, r1 = bad[0] * NOISE_WINDOW_PX // w, ((bad[-1] + 1) * NOISE_WINDOW_PX - 1) // w
-    return f"image rows {r0}..{r1} hold random-looking bytes (damaged image data)"
 
 
 def _raw_header_ns(raw: bytes, ros2: bool) -> int:
@@ -207,9 +150,6 @@ class BagSource:
 
     # -- opening ------------------------------------------------------------------------
     def _reader(self):
-        from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
-
         store = get_typestore(Stores.ROS2_HUMBLE if self.ros2 else Stores.ROS1_NOETIC)
         return AnyReader([self.path], default_typestore=store)
 
@@ -228,8 +168,6 @@ class BagSource:
 
     def _scan_topics(self, err: Exception) -> dict[str, tuple[str, int]]:
         """Unindexed/truncated ROS 1 bag: one scan pass collects joints and image stamps."""
-        from rosbags.typesys import Stores, get_typestore
-
         store = get_typestore(Stores.ROS1_NOETIC)
         scan = Bag1Scan(self.path)
         counts: dict[str, list] = {}
@@ -323,8 +261,6 @@ class BagSource:
         images), in bag order."""
         topic = topic or self.image_topic
         if self.scan:
-            from rosbags.typesys import Stores, get_typestore
-
             store = get_typestore(Stores.ROS1_NOETIC)
             for c, t, raw in Bag1Scan(self.path).messages():
                 if c.topic == topic:

@@ -23,10 +23,13 @@ at least one message).
 from __future__ import annotations
 
 import bz2
+import io
 import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO, Iterator
+
+import lz4.frame  # installed with rosbags, which reads lz4 chunks the same way
 
 _MAX_HEADER = 1 << 20          # a header longer than this is corruption, not data
 OP_MSGDATA, OP_BAGHEADER, OP_IDXDATA, OP_CHUNK, OP_CHUNK_INFO, OP_CONNECTION = 2, 3, 4, 5, 6, 7
@@ -133,8 +136,6 @@ class Bag1Scan:
             if comp == "bz2":
                 return bz2.BZ2Decompressor().decompress(data)
             if comp == "lz4":
-                import lz4.frame
-
                 return lz4.frame.LZ4FrameDecompressor().decompress(data)
         except Exception as e:  # noqa: BLE001 - corrupt compressed data ends the scan
             self.truncated, self.stop_reason = True, f"chunk does not decompress ({e})"
@@ -162,8 +163,6 @@ class Bag1Scan:
             yield from self._walk(self._records(f, inner=False))
 
     def _walk(self, records: Iterator[tuple[dict, bytes]]) -> Iterator[tuple[ScanConnection, int, bytes]]:
-        import io
-
         for fields, data in records:
             try:
                 op = fields.get("op", b"\0")[0]

@@ -8,9 +8,12 @@ from typing import Iterable
 
 import cv2
 import numpy as np
+from rosbags.rosbag1 import Writer
+from rosbags.typesys import Stores, get_typestore
 
-from graphtrack.io.bag import (COMPRESSED_TOPIC, COMPRESSED_TYPE, IMAGE_TOPIC, IMAGE_TYPE, JOINT_TYPE,
-                               RIGHT_COMPRESSED_TOPIC, RIGHT_IMAGE_TOPIC, to_ns)
+from graphtrack.io.bag import (COMPRESSED_TOPIC, IMAGE_TOPIC, JOINT_TYPE, RIGHT_COMPRESSED_TOPIC,
+                               RIGHT_IMAGE_TOPIC, to_ns)
+from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE
 from graphtrack.io.topics import jaw_topics, joint_topics
 
 
@@ -34,9 +37,6 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
     Every message's header stamp and bag record time is the frame's stamp.
     Returns the number of frames written.
     """
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
     if dvrk_version not in (1, 2):
         raise ValueError(f"dvrk_version must be 1 or 2, got {dvrk_version!r}")
     joint_topic, jaw_topic = joint_topics(arm)[dvrk_version - 1], jaw_topics(arm)[dvrk_version - 1]

@@ -15,14 +15,14 @@ import re
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from graphtrack.errors import InputError, is_number, read_text
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
+from graphtrack.io.topics import TopicSelection, handeye_arm
 
 
 def _read_yaml(path: Path) -> dict:
-    import yaml
-
     text = read_text(path)
     # OpenCV FileStorage writes a "%YAML:1.0" directive that PyYAML rejects
     text = re.sub(r"^%YAML:1\.0\s*\n", "", text)
@@ -78,8 +78,6 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
     numbers, holds NaN/inf, puts the camera more than 5 m from the base, turns more
     than 2 pi, or when the file holds several arms and none was named.
     """
-    from graphtrack.io.topics import TopicSelection, handeye_arm
-
     path = Path(path)
     doc = _read_yaml(path)
     prefix = handeye_arm(doc, TopicSelection(arm=arm), str(path))
@@ -100,8 +98,6 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
 
 def save_handeye(path: str | Path, T: np.ndarray, arm: str = "PSM1") -> None:
     """Write a 4x4 camera-from-base transform (metres) as handeye.yaml (mm, rad)."""
-    import yaml
-
     bw = matrix_to_bw(np.asarray(T, dtype=float))
     doc = {f"{arm}_tvec": [float(v) * 1000.0 for v in bw[:3]],
            f"{arm}_rvec": [float(v) for v in bw[3:]]}

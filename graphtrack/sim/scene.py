@@ -32,9 +32,9 @@ import cv2
 import numpy as np
 
 from graphtrack.geometry.camera import Camera
-from graphtrack.sim import textures
-from graphtrack.sim.render import MARKER_ID, Material, Primitive, ToolRenderer
 from graphtrack.robot.psm import JAW_LENGTH, SHAFT_END, SHAFT_RADIUS
+from graphtrack.sim import stereo, textures
+from graphtrack.sim.render import MARKER_ID, Material, Primitive, ToolRenderer, intersect
 
 SCENES = ("structured", "tissue")
 JAW_R, WRIST_R, CLEVIS_R = 0.0012, 0.0037, 0.0028
@@ -133,8 +133,6 @@ class Scene:
         return None
 
     def _occluder_mask(self, i: int):
-        from graphtrack.sim.render import intersect
-
         H, W = self.camera.height, self.camera.width
         m = np.zeros((H, W), np.float32)
         for o in self.occlusions:
@@ -154,8 +152,6 @@ class Scene:
 
     def add_view(self, camera: Camera, to_view: np.ndarray, rng, antialias: bool = True) -> "View":
         """A second camera (``to_view``: its 4x4 from the left camera, metres) of the same scene."""
-        from graphtrack.sim import stereo
-
         vig = textures.vignette(camera.height, camera.width, self.vig_strength) if self.vig is not None else None
         r = ToolRenderer(camera, self.materials, self.light, self.falloff, self.distance, vig, antialias)
         r.markers = self.renderer.markers
@@ -256,8 +252,6 @@ class View:
     def layer(self, img: np.ndarray, depth: float) -> np.ndarray:
         if self.to_view is None:
             return img
-        from graphtrack.sim import stereo
-
         key = round(float(depth), 4)
         if key not in self._maps:
             self._maps[key] = self.plane_map(key)

@@ -29,11 +29,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from graphtrack.errors import InputError
-from graphtrack.io.outdir import writable_dir
 from graphtrack.geometry.camera import Calibration, save_calibration
-from graphtrack.geometry.se3 import matrix_to_quaternion, transform_points
+from graphtrack.geometry.se3 import matrix_to_bw, matrix_to_quaternion, transform_points
+from graphtrack.io.bag_write import write_bag
+from graphtrack.io.folder import write_folder
+from graphtrack.io.handeye import save_handeye
+from graphtrack.io.labels import write_labels
+from graphtrack.io.outdir import writable_dir
 from graphtrack.robot.description import save_robot_json
 from graphtrack.robot.kinematics import link_transforms
 from graphtrack.robot.psm import psm_large_needle_driver
@@ -202,8 +207,6 @@ class Simulation:
 
     def scenario(self) -> dict:
         """What a randomized recording drew (scenario.json; see sim/scenario.py)."""
-        from graphtrack.geometry.se3 import matrix_to_bw
-
         bw = matrix_to_bw(self.delta)
         cam = self.camera
         H, W = cam.height, cam.width
@@ -249,21 +252,21 @@ def _prepare_out(out: Path) -> None:
 
 def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
              compressed: bool = False, form: str = "bag", randomize: bool = False, progress: bool = True,
-             noise_free: bool = False, stereo: bool = False) -> Path:
+             noise_free: bool = False, stereo: bool = False, image_format: str = "png") -> Path:
     """Write a simulated recording into ``out_dir`` (sequence format + truth.csv) and return it.
 
     scene: "structured" | "tissue"; frames > 0; size = (H, W) px; form: "bag"
-    (one ROS 1 bag ``recording.bag``; ``compressed`` -> PNG CompressedImage) or
-    "folder" (frames/ + joints.csv). ``noise_free``: no hand-eye error, no
+    (one ROS 1 bag ``recording.bag``; ``compressed`` -> CompressedImage) or
+    "folder" (frames/ + joints.csv). image_format: "png" (lossless) or "jpeg" (OpenCV's
+    quality 95, a tenth of the size) for the folder's files and compressed bag images. ``noise_free``: no hand-eye error, no
     joint noise, no sensor noise/blur/flap (for geometry tests). ``stereo``: also
     the right images (``/stereo/right/image[/compressed]`` or frames_right/), K2, D2,
     R, T in camera_calibration.yaml and labels_right.csv. ``randomize``: also
     scenario.json (what was drawn; sim/scenario.py).
     Frames are rendered and written one at a time.
     """
-    from graphtrack.io.handeye import save_handeye
-    from graphtrack.io.labels import write_labels
-
+    if image_format not in ("png", "jpeg"):
+        raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
     sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
@@ -278,17 +281,11 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
         tf.write(TRUTH_COLUMNS + "\n")
         it = sim.frames(tf, labels, labels_right)
         if progress:
-            from tqdm import tqdm
-
             it = tqdm(it, total=sim.n, desc=f"simulate {scene}", unit="frame")
         if form == "bag":
-            from graphtrack.io.bag_write import write_bag
-
-            write_bag(out / "recording.bag", it, compressed=compressed, image_format="png")
+            write_bag(out / "recording.bag", it, compressed=compressed, image_format=image_format)
         else:
-            from graphtrack.io.folder import write_folder
-
-            write_folder(out, it)
+            write_folder(out, it, image_ext="jpg" if image_format == "jpeg" else "png")
     write_labels(out / "labels.csv", labels)
     if labels_right is not None:
         write_labels(out / "labels_right.csv", labels_right)

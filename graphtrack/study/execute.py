@@ -27,10 +27,12 @@ from tqdm import tqdm
 
 from graphtrack.errors import InputError
 from graphtrack.study.cells import Cell
+from graphtrack.threads import THREAD_ENV, limit_threads
 from graphtrack.track import track
 
 
 def _track_into(cell: Cell, out: Path) -> dict:
+    limit_threads(1)  # parallelism is across cells: one thread per worker
     return track(cell.path, out, cell.track_options(), video=cell.video, progress=False,
                  max_frames=cell.options["max_frames"], quiet=True)
 
@@ -156,7 +158,8 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
                 # workers find graphtrack where this process found it (also when not installed)
                 pkg_root = str(Path(__file__).resolve().parents[2])
                 kw["runtime_env"] = {"env_vars": {"PYTHONPATH": os.pathsep.join(
-                    [pkg_root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p])}}
+                    [pkg_root] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]),
+                    **{v: "1" for v in THREAD_ENV}}}
                 ray.init(num_cpus=workers or None, **kw)
             else:
                 ray.init(address=address, **kw)

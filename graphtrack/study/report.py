@@ -108,7 +108,7 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
         res = [st["result"] for _, st in runs]
         means = [_get(r, "tip_error_percent_diagonal", "mean") for r in res]
         acc[row, rec] = (_mean(means), _mean([_get(r, "tip_error_percent_diagonal", "std") for r in res]))
-        run[row, rec] = (_mean([_get(r, "runtime_ms", "median") for r in res]), _mean([_get(r, "fps") for r in res]))
+        run[row, rec] = (_mean([_get(r, "runtime_ms", "median") for r in res]), _mean([_get(r, "fps_steady") for r in res]))
         if len(runs) > 1:
             spread[row, rec] = (min(means), max(means), len(runs))
 
@@ -132,7 +132,8 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
         md += ["", "Entries run with several seeds (a stochastic estimator or RANSAC lines) are the "
                "mean over the seeds; the per-seed means (% of the diagonal):", ""]
         md += _md_table([row for row in rows if any((row, r) in spread for r in recs)], recs, seeds_cell)
-    md += ["", "## Runtime", "", "Median milliseconds per frame (frames per second).", ""]
+    md += ["", "## Runtime", "", "Median milliseconds per frame (steady-state frames per second: 1000 / the "
+           "mean per-frame milliseconds after the first frame; start-up and an offline finish not counted).", ""]
     md += _md_table(rows, recs, lambda row, r: run_cell_(run.get((row, r), "—")))
     plots = [f"accumulated_error_{r}.png" for r in recs if (out / f"accumulated_error_{r}.png").is_file()]
     if plots:
@@ -151,7 +152,7 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
                 "tip_error_percent_diagonal.mean", "tip_error_percent_diagonal.std",
                 "tip_error_percent_diagonal.median", "tip_error_percent_diagonal.p95",
                 "tip_error_3d_mm.mean", "translation_error_mm.mean", "rotation_error_deg.mean",
-                "nees.mean", "runtime_ms.median", "fps", "frames_tracked", "frames_skipped"]
+                "nees.mean", "runtime_ms.median", "fps", "fps_steady", "frames_tracked", "frames_skipped"]
         w.writerow(["recording", "observation", "estimator", "seed", "state"] + cols + ["error"])
         for c, st in status:
             r = st.get("result", {})
@@ -164,7 +165,7 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
     """accumulated_error_<recording>.png: one curve per completed cell with labels (the
     study's own seed of a repeated one)."""
-    import matplotlib  # heavy, and only the plots need it
+    import matplotlib  # lazy: heavy, and only the plots need it (a study without plots never loads it)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

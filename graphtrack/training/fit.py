@@ -20,13 +20,16 @@ from __future__ import annotations
 
 import time
 
+import cv2
 import numpy as np
+import torch
+
+from graphtrack.detect.learned_net import ARCH, LineNet
+from graphtrack.training.labels import target_maps
 
 
 def _augment(x, segs, rng, h: int, w: int):
     """x: (B, 3, h, w) float in [0, 1]; segs (B, S, 4) numpy; returns both augmented."""
-    import torch
-
     B = x.shape[0]
     segs = segs.copy()
     for b in range(B):
@@ -60,8 +63,6 @@ def _augment(x, segs, rng, h: int, w: int):
 def jpeg_roundtrip(images: np.ndarray, quality: int = 95) -> np.ndarray:
     """Every training image through JPEG (quality 95), as recorded endoscope video
     usually is; part of the data (also keeps the set small enough to carry)."""
-    import cv2
-
     out = np.empty_like(images)
     for i, im in enumerate(images):
         out[i] = cv2.imdecode(cv2.imencode(".jpg", im, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])[1],
@@ -72,10 +73,7 @@ def jpeg_roundtrip(images: np.ndarray, quality: int = 95) -> np.ndarray:
 def initial_net(init=None, width: int = 16, stem: int = 8):
     """A fresh LineNet(width, stem), or the trainable (unfused) net of weights file
     ``init`` (its own width and stem) to fine-tune from; InputError when unusable."""
-    import torch
-
     from graphtrack.detect.learned import load_weights
-    from graphtrack.detect.learned_net import LineNet
 
     if init is None:
         return LineNet(width, stem)
@@ -91,10 +89,6 @@ def train(images: np.ndarray, segments: np.ndarray, epochs: int = 30, seed: int 
     """Train a LineNet on (images (N, h, w, 3) uint8 BGR, segments (N, S, 4)), from
     scratch or (``init``: a weights file) fine-tuning those weights;
     returns (net (train mode, on the CPU), stats dict)."""
-    import torch
-
-    from graphtrack.training.labels import target_maps
-
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     N, h, w = images.shape[:3]
@@ -136,10 +130,6 @@ def train(images: np.ndarray, segments: np.ndarray, epochs: int = 30, seed: int 
 def save(net, path, meta: dict) -> None:
     """Weights file: {"arch", "width", "stem", "state_dict", "meta"} (torch.save;
     loadable with weights_only=True)."""
-    import torch
-
-    from graphtrack.detect.learned_net import ARCH
-
     sd = {k: v.detach().cpu().clone() for k, v in net.state_dict().items()}
     clean = {k: (v if isinstance(v, (int, float, str, bool)) or v is None else str(v)) for k, v in meta.items()}
     torch.save({"arch": ARCH, "width": net.width, "stem": net.stem_width, "state_dict": sd, "meta": clean},

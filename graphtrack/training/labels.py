@@ -25,6 +25,7 @@ nearest segment and e(p) the distance to the nearest segment endpoint:
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
 from graphtrack.robot.features import base_features
@@ -100,8 +101,6 @@ def to_reduced(segments: np.ndarray, sx: float, sy: float) -> np.ndarray:
 def target_maps(segments, h: int, w: int):
     """Line and junction targets (torch float (B, 2, h, w)) for reduced-scale
     segments: a tensor (B, S, 4) with NaN rows for absent segments."""
-    import torch
-
     seg = torch.as_tensor(segments, dtype=torch.float32)
     if seg.ndim == 2:
         seg = seg[None]

@@ -24,30 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from graphtrack.geometry.cylinder import line_angles, project_cylinder_batch
+from graphtrack.geometry.se3 import so3_exp_batch
 from graphtrack.robot.kinematics import link_transforms
-
-
-def rotations(w: np.ndarray) -> np.ndarray:
-    """R(w) = I + A [w]x + B [w]x^2 for axis-angle rows w (N, 3) (rad), as (3, 3, N).
-
-    [w]x^2 = w w^T - |w|^2 I, A = sin t / t, B = (1 - cos t) / t^2 with t = |w|
-    (second-order Taylor below t = 1e-4)."""
-    wx, wy, wz = np.ascontiguousarray(np.asarray(w, float).T)
-    t2 = wx * wx + wy * wy + wz * wz
-    small = t2 < 1e-8
-    t = np.sqrt(np.where(small, 1.0, t2))
-    A = np.where(small, 1.0 - t2 / 6.0, np.sin(t) / t)
-    B = np.where(small, 0.5 - t2 / 24.0, (1.0 - np.cos(t)) / (t * t))
-    bxy, bxz, byz = B * wx * wy, B * wx * wz, B * wy * wz
-    ax, ay, az = A * wx, A * wy, A * wz
-    R = np.empty((3, 3, len(wx)))
-    R[0, 0] = 1.0 + B * (wx * wx - t2)
-    R[1, 1] = 1.0 + B * (wy * wy - t2)
-    R[2, 2] = 1.0 + B * (wz * wz - t2)
-    R[0, 1], R[1, 0] = bxy - az, bxy + az
-    R[0, 2], R[2, 0] = bxz + ay, bxz - ay
-    R[1, 2], R[2, 1] = byz - ax, byz + ax
-    return R
 
 
 @dataclass
@@ -120,7 +98,7 @@ class Hypotheses:
 def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray) -> Hypotheses:
     """Project the frame's features for the particle states x (N, 6) = (b, w)."""
     V, r, on_shaft = geometry.V, geometry.r, geometry.on_shaft
-    R = rotations(x[:, 3:])
+    R = so3_exp_batch(x[:, 3:])
     k = V.shape[1]
     # W[i, k, n] = sum_j R[i, j, n] V[j, k]: one GEMM, (3, 3, N) -> (3, K, N)
     W = np.matmul(V.T, R)

@@ -1,0 +1,234 @@
+"""Robustness of the online estimators on randomized recordings (issue #18).
+
+    python3 benchmarks/bench_robustness.py [--recordings 200] [--workers 2] [--ray local]
+    python3 benchmarks/run_all.py robustness          # the default set, into RESULTS.md
+
+Recordings: ``--recordings`` randomized recordings (``graphtrack simulate
+--randomize``, JPEG frames; docs/randomized-recordings.md) with seeds SEED0,
+SEED0 + 1, ... — held out: no default was tuned and the detector was not
+trained on them — of 90-150 frames (drawn from the seed) at 540x960, the
+scenes alternating tissue / structured. Each draws a hand-eye error of up to
+10 mm / 5 deg, occlusions, the tool leaving the view, smoke, blur, ...
+
+Cells (:mod:`graphtrack.study`, local processes or Ray): kinematics, pf,
+smoother and batch with the learned detector and ``line-intensities``.
+
+Per recording and estimator (:mod:`graphtrack.eval.robustness`), from the
+per-frame 2-D tip error against the exact tip (truth_errors.csv, tip2d_px)
+and the disturbances in scenario.json (every occlusion interval and every
+interval with the shaft out of view; evaluation only, the estimators never
+read it): the mean tip error; frames to converge (the first visible
+segment: the frame from which the error stays below 5 px; a first segment
+cut by a disturbance before 15 frames is not judged); frames to re-acquire
+after each disturbance; the worst 10-frame window minus the kinematics'.
+
+Aggregates: p50 / p95 / max of the per-recording mean error; the fraction of
+recordings converged within 15 frames; the fraction never worse than no
+tracking over any 10-frame window (by more than WORSE_TOL_PX: differences
+under a pixel are the detector's noise, not a failure; the strict fraction is
+reported too); the fraction of re-acquisitions within 15 frames; smoother
+p95 / batch p95. Plot: robustness.png (per-recording mean error, CDF).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+DATA = Path(os.environ.get("GRAPHTRACK_BENCH_DATA", HERE / ".data")) / "robustness"
+SEED0 = 900_000          # held out: nothing is tuned or trained on 900000-900999
+RECORDINGS = 200
+FRAMES = (90, 150)
+ESTIMATORS = ["kinematics", "pf", "smoother", "batch"]
+ONLINE = ("pf", "smoother")
+LIMIT = 15               # frames to converge / re-acquire
+WORSE_TOL_PX = 1.0
+
+
+def recording_spec(i: int) -> tuple[str, int, int]:
+    """(scene, frames, seed) of the benchmark's i-th recording."""
+    seed = SEED0 + i
+    frames = int(np.random.default_rng(seed).integers(FRAMES[0], FRAMES[1] + 1))
+    return ("tissue", "structured")[i % 2], frames, seed
+
+
+def _simulate(spec) -> str:
+    from graphtrack.sim.simulate import simulate
+    from graphtrack.threads import limit_threads
+
+    limit_threads(1)
+    scene, frames, seed = spec
+    final = DATA / "recordings" / f"{scene}-{seed}"
+    if not (final / ".complete").is_file():
+        simulate(final, scene=scene, frames=frames, seed=seed, size=(540, 960), form="folder", randomize=True,
+                 progress=False, image_format="jpeg")
+        (final / ".complete").write_text("ok\n")
+    return str(final)
+
+
+def recordings(n: int, workers: int) -> list[str]:
+    specs = [recording_spec(i) for i in range(n)]
+    if workers <= 1:
+        return [_simulate(s) for s in specs]
+    import multiprocessing as mp
+
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as ex:
+        return list(ex.map(_simulate, specs))
+
+
+def disturbances(recording: Path) -> list[tuple[int, int]]:
+    """Occlusion intervals and shaft-out-of-view intervals of scenario.json, [start, end)."""
+    doc = json.loads((Path(recording) / "scenario.json").read_text())
+    out = [(int(o["start"]), int(o["end"])) for o in doc.get("occlusions", [])]
+    out += [tuple(map(int, iv)) for iv in (doc.get("out_of_view") or {}).get("shaft_out", [])]
+    return out
+
+
+def tip_errors(cell_dir: Path) -> np.ndarray | None:
+    """Per-frame 2-D tip error (px) against the exact tip, by frame index; None if the cell failed."""
+    p = cell_dir / "truth_errors.csv"
+    if not (cell_dir / "done.json").is_file() or not p.is_file():
+        return None
+    rows = np.genfromtxt(p, delimiter=",", names=True)
+    rows = np.atleast_1d(rows)
+    n = int(rows["frame"].max()) + 1 if rows.size else 0
+    err = np.full(n, np.nan)
+    err[rows["frame"].astype(int)] = rows["tip2d_px"]
+    return err
+
+
+def figures(study: Path, paths: list[str]) -> dict[str, list[dict]]:
+    """Per estimator, one dict of :func:`graphtrack.eval.robustness.recording_figures` per recording."""
+    from graphtrack.eval.robustness import recording_figures
+
+    out: dict[str, list[dict]] = {e: [] for e in ESTIMATORS}
+    for path in paths:
+        runs = study / "runs" / Path(path).name
+        base = tip_errors(runs / "kinematics")
+        dist = disturbances(Path(path))
+        for est in out:
+            err = base if est == "kinematics" else tip_errors(runs / f"{est}-line-intensities")
+            if err is None or base is None:
+                out[est].append({"failed": True})
+                continue
+            n = min(len(err), len(base))
+            out[est].append(recording_figures(err[:n], base[:n], dist))
+    return out
+
+
+def _judged(frames: float, segment: int) -> bool:
+    """A convergence is judged when it happened within LIMIT frames or its segment was longer
+    than LIMIT (a segment cut by the next disturbance sooner decides nothing)."""
+    return not np.isnan(frames) and (frames <= LIMIT or segment > LIMIT)
+
+
+def summarise(figs: list[dict]) -> dict:
+    ok = [f for f in figs if not f.get("failed")]
+    mean = np.array([f["mean_px"] for f in ok], float)
+    judged = [f for f in ok if _judged(f["startup_frames"], f["startup_segment"])]
+    reacq = [r for f in ok for r, seg in zip(f["reacquire_frames"], f["reacquire_segments"]) if _judged(r, seg)]
+    worst = np.array([f["worst_window_excess_px"] for f in ok], float)
+    worst = worst[np.isfinite(worst)]
+    return {"recordings": len(figs), "failed": len(figs) - len(ok),
+            "mean_px_p50": float(np.percentile(mean, 50)) if mean.size else float("nan"),
+            "mean_px_p95": float(np.percentile(mean, 95)) if mean.size else float("nan"),
+            "mean_px_max": float(mean.max()) if mean.size else float("nan"),
+            "converged15": float(np.mean([f["startup_frames"] <= LIMIT for f in judged])) if judged else float("nan"),
+            "startup_judged": len(judged),
+            "startup_frames_p95": float(np.quantile([f["startup_frames"] for f in judged], 0.95, method="higher")) if judged
+            else float("nan"),
+            "never_worse": float(np.mean(worst <= WORSE_TOL_PX)) if worst.size else float("nan"),
+            "never_worse_strict": float(np.mean(worst <= 0.0)) if worst.size else float("nan"),
+            "worst_excess_max_px": float(worst.max()) if worst.size else float("nan"),
+            "reacquisitions": len(reacq),
+            "reacquired15": float(np.mean(np.asarray(reacq) <= LIMIT)) if reacq else float("nan")}
+
+
+def plot(study: Path, per_est: dict[str, list[dict]]) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401  (ScalarFormatter)
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    for est, figs in per_est.items():
+        v = np.sort([f["mean_px"] for f in figs if not f.get("failed")])
+        if v.size:
+            ax.step(v, np.arange(1, v.size + 1) / v.size, where="post", label=est)
+    ax.set_xscale("log")
+    ax.set_ylim(0, 1.02)
+    ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.set_xlabel("per-recording mean 2-D tip error against the exact tip (px, 540x960)")
+    ax.set_ylabel("fraction of recordings")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(HERE / "robustness.png", dpi=110)
+    plt.close(fig)
+    return "robustness.png"
+
+
+def table(res: dict) -> str:
+    keys = [("mean_px_p50", "mean p50 px"), ("mean_px_p95", "mean p95 px"), ("mean_px_max", "mean max px"),
+            ("converged15", "converged <= 15 frames"), ("never_worse", "never worse (1 px tol.)"),
+            ("never_worse_strict", "never worse (strict)"), ("reacquired15", "re-acquired <= 15 frames"),
+            ("reacquisitions", "re-acquisitions"), ("failed", "failed runs")]
+    rows = ["| estimator | " + " | ".join(k[1] for k in keys) + " |", "|---" * (len(keys) + 1) + "|"]
+    for est in ESTIMATORS:
+        s = res[est]
+        cells = [("–" if est == "kinematics" and k not in ("mean_px_p50", "mean_px_p95", "mean_px_max", "failed")
+                  else f"{s[k]:.3g}" if isinstance(s[k], float) else str(s[k])) for k, _ in keys]
+        rows.append(f"| {est} | " + " | ".join(cells) + " |")
+    return "\n".join(rows)
+
+
+def run(results: dict, n: int = RECORDINGS, workers: int | None = None, ray: str | None = None) -> dict:
+    from graphtrack.study.cells import StudyOptions
+    from graphtrack.study.plan import run_study
+
+    workers = workers or os.cpu_count() or 1
+    if hasattr(os, "sched_setaffinity"):  # run_all pins itself to one core; the study may use all
+        os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+    paths = recordings(n, workers)
+    study = DATA / f"study-{n}"
+    run_study(paths, study, StudyOptions(estimators=ESTIMATORS, observations=["line-intensities"]),
+              workers=workers, ray_address=ray, quiet=False)
+    per_est = figures(study, paths)
+    res = results.setdefault("robustness", {})
+    for est, figs in per_est.items():
+        res[est] = summarise(figs)
+    for est in ONLINE:
+        res[f"converged15_{est}"] = res[est]["converged15"]
+        res[f"never_worse_{est}"] = res[est]["never_worse"]
+        res[f"reacquired15_{est}"] = res[est]["reacquired15"]
+    res["p95_ratio_smoother_batch"] = res["smoother"]["mean_px_p95"] / res["batch"]["mean_px_p95"]
+    res["seeds"] = f"{SEED0}-{SEED0 + n - 1}"
+    res["plots"] = [plot(study, per_est)]
+    res.setdefault("tables", {})[f"{n} randomized recordings (seeds {res['seeds']}, held out)"] = table(res)
+    (study / "robustness.json").write_text(json.dumps({"summary": res, "per_recording": per_est}, indent=1,
+                                                      default=float))
+    print(table(res))
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--recordings", type=int, default=RECORDINGS)
+    ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--ray", default=None, metavar="ADDRESS", help="run the cells as Ray tasks (e.g. local)")
+    a = ap.parse_args(argv)
+    res = run({}, a.recordings, a.workers, a.ray)
+    print(json.dumps({k: v for k, v in res["robustness"].items() if k != "tables"}, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.path.insert(0, str(HERE.parent))
+    sys.exit(main())
