@@ -43,8 +43,8 @@ FRAMES = 300
 RECORDINGS = (("structured", 7), ("tissue", 8))
 ESTIMATORS = ("kinematics", "pf", "smoother", "batch")
 REPEATS = 5
-#: local worker processes for the study's cells (accuracy does not depend on it)
-WORKERS = int(os.environ.get("GRAPHTRACK_BENCH_WORKERS", "1"))
+#: local worker processes for the study's cells (accuracy does not depend on it): every core
+WORKERS = int(os.environ.get("GRAPHTRACK_BENCH_WORKERS", str(os.cpu_count() or 1)))
 
 
 def run(results: dict) -> dict:
@@ -52,6 +52,8 @@ def run(results: dict) -> dict:
     from graphtrack.study import StudyOptions, run_study
     from graphtrack.sim import simulate
 
+    if WORKERS > 1 and hasattr(os, "sched_setaffinity"):  # run_all pins itself to one core
+        os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
     paths = []
     for scene, seed in RECORDINGS:
         p = DATA / f"acc-{scene}-{seed}-{FRAMES}"

@@ -53,3 +53,22 @@ def test_train_command_bad_args(tmp_path, capsys):
 
     assert main(["train", "--out", str(tmp_path / "no" / "w.pt"), "--frames", "2"]) == 2
     assert main(["train", "--out", str(tmp_path / "w.pt"), "--frames", "0"]) == 2
+
+
+def test_train_init_fine_tunes_from_weights(tmp_path):
+    # zero epochs from --init: the written weights are the initial ones, and the
+    # metadata holds the command that made them
+    from graphtrack.cli import main
+    from graphtrack.detect.learned import DEFAULT_WEIGHTS
+
+    torch.set_num_threads(1)
+    out = tmp_path / "w.pt"
+    assert main(["train", "--out", str(out), "--frames", "2", "--epochs", "0", "--init", str(DEFAULT_WEIGHTS),
+                 "--lr", "1e-3", "--quiet"]) == 0
+    new = torch.load(out, weights_only=True)
+    old = torch.load(DEFAULT_WEIGHTS, weights_only=True)
+    for k, v in old["state_dict"].items():
+        assert torch.equal(new["state_dict"][k], v)
+    assert new["meta"]["init"] == str(DEFAULT_WEIGHTS)
+    assert f"--init {DEFAULT_WEIGHTS}" in new["meta"]["command"] and "--lr 0.001" in new["meta"]["command"]
+    assert main(["train", "--out", str(out), "--frames", "2", "--init", str(tmp_path / "none.pt")]) == 2

@@ -9,7 +9,8 @@ shipped ``graphtrack/data/learned_detector.pt`` is
     graphtrack train --out graphtrack/data/learned_detector.pt --device cuda
 
 i.e. the defaults: 2400 frames (100 recordings x 24; simulated in ~130 s on
-one core), 60 epochs, batch 32, seed 0. On an H100 the 60 epochs took 348 s
+one core), 60 epochs, batch 32, seed 0 (see docs/decisions/learned-detector.md
+for the recipe of the current weights; ``--init`` fine-tunes existing weights). On an H100 the 60 epochs took 348 s
 (the per-sample augmentation is Python-bound); on the CPU (``--device cpu``,
 the same recipe and seed) expect roughly 0.15-0.3 s per frame and epoch on
 one core, i.e. several hours for the full schedule.
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from graphtrack.commands.common import add_threads_argument
 from graphtrack.errors import InputError
 
 
@@ -37,9 +39,21 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=0, help="seed of the data and of the training")
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="training device")
     p.add_argument("--batch", type=int, default=32, help="batch size")
+    p.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (cosine decay to 1e-5)")
+    p.add_argument("--init", metavar="WEIGHTS", help="fine-tune from this weights file (None: from scratch)")
+    add_threads_argument(p)
     p.add_argument("--data", metavar="NPZ", help="reuse / write the simulated frames in this .npz cache (None: none)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
+
+
+def command(args) -> str:
+    """The ``graphtrack train`` command line that reproduces these weights (written into them)."""
+    parts = [f"graphtrack train --out {args.out} --frames {args.frames} --epochs {args.epochs}",
+             f"--seed {args.seed} --batch {args.batch} --lr {args.lr:g} --device {args.device}"]
+    if args.init is not None:
+        parts.append(f"--init {args.init}")
+    return " ".join(parts)
 
 
 def run(args) -> int:
@@ -49,6 +63,10 @@ def run(args) -> int:
         raise InputError("--epochs must be >= 0")
     if args.batch <= 0:
         raise InputError("--batch must be positive")
+    if not args.lr > 0:
+        raise InputError("--lr must be positive")
+    if args.init is not None and not Path(args.init).is_file():
+        raise InputError(f"{args.init}: weights file not found")
     # lazy: training loads torch (seconds), and the CLI imports every command module to build its parser
     import torch
 
@@ -75,9 +93,10 @@ def run(args) -> int:
             np.savez(cache, images=images, segments=segments)
     images = jpeg_roundtrip(images)
     net, stats = train(images, segments, epochs=args.epochs, seed=args.seed, device=args.device,
-                       batch=args.batch, log=log)
+                       batch=args.batch, lr=args.lr, log=log, init=args.init)
     meta = {"frames": int(len(images)), "seed": int(args.seed), **{k: v for k, v in stats.items()},
-            "data": json.dumps(info), "total_seconds": round(time.perf_counter() - t0, 1)}
+            "data": json.dumps(info), "total_seconds": round(time.perf_counter() - t0, 1),
+            "command": command(args)}
     save(net, out, meta)
     log(json.dumps(meta))
     log(f"wrote {out}")

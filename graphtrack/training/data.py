@@ -38,8 +38,9 @@ SPAN = 150            #: frames of each recording's trajectory (5 s)
 MAX_SEG = 6           #: segments per frame (2 edges, each split at most twice by a flap)
 
 
-def _visible_runs(seg: np.ndarray, camera, flap, step: float) -> list[np.ndarray]:
-    """Split a full-res undistorted segment where it lies under the flap (raw mask)."""
+def visible_runs(seg: np.ndarray, camera, flap, step: float) -> list[np.ndarray]:
+    """The parts (x1, y1, x2, y2) of an undistorted segment (camera px) not under the
+    occluder mask ``flap`` (``Scene.flap_mask``: raw px, hidden where > 64), sampled every ``step`` px."""
     if flap is None:
         return [seg]
     m, (v0, v1, u0, u1) = flap
@@ -88,7 +89,7 @@ def generate(frames: int, seed: int = 0, per_recording: int = 24, render_size=(2
             images[k] = cv2.resize(und, (ws, hs), interpolation=cv2.INTER_AREA)
             full = shaft_edge_segments(sim.robot, sim.q_read[i], sim.E_t[i], cam.K, cam.height, cam.width)
             flap = sim.scene.flap_mask(int(i))
-            runs = [run for s in full for run in _visible_runs(s, cam, flap, 1.0 / scale * cam.width / full_size[1])]
+            runs = [run for s in full for run in visible_runs(s, cam, flap, 1.0 / scale * cam.width / full_size[1])]
             red = to_reduced(np.array(runs).reshape(-1, 4), ws / cam.width, hs / cam.height)
             red = red[np.hypot(red[:, 2] - red[:, 0], red[:, 3] - red[:, 1]) >= 2.0][:MAX_SEG]
             segs[k, :len(red)] = red

@@ -11,6 +11,8 @@ low light), gamma 0.7-1.8, per-channel gain 0.8-1.2, contrast 0.6-1.2 about
 the mean, Gaussian noise sigma 0-0.05, 3x3 box blur 1 in 4.
 
 Optimiser: AdamW (lr 3e-3, weight decay 1e-4), cosine decay to 1e-5, batch 32 (``graphtrack train``'s default).
+Fine-tuning (``init``): the same loop started from a weights file's trainable
+(unfused) parameters, usually with a lower lr.
 Everything is seeded from ``seed`` (torch, the shuffling and augmentation rng);
 on the CPU with one thread the same command gives the same weights.
 """
@@ -68,14 +70,29 @@ def jpeg_roundtrip(images: np.ndarray, quality: int = 95) -> np.ndarray:
     return out
 
 
+def initial_net(init=None, width: int = 16, stem: int = 8):
+    """A fresh LineNet(width, stem), or the trainable (unfused) net of weights file
+    ``init`` (its own width and stem) to fine-tune from; InputError when unusable."""
+    from graphtrack.detect.learned import load_weights
+
+    if init is None:
+        return LineNet(width, stem)
+    load_weights(init)  # validates the file (architecture, shapes) with the detector's own checks
+    obj = torch.load(str(init), map_location="cpu", weights_only=True)
+    net = LineNet(int(obj["width"]), int(obj["stem"]))
+    net.load_state_dict(obj["state_dict"], strict=True)
+    return net
+
+
 def train(images: np.ndarray, segments: np.ndarray, epochs: int = 30, seed: int = 0, device: str = "cpu",
-          batch: int = 16, lr: float = 3e-3, width: int = 16, stem: int = 8, log=print):
-    """Train a LineNet on (images (N, h, w, 3) uint8 BGR, segments (N, S, 4));
+          batch: int = 16, lr: float = 3e-3, width: int = 16, stem: int = 8, log=print, init=None):
+    """Train a LineNet on (images (N, h, w, 3) uint8 BGR, segments (N, S, 4)), from
+    scratch or (``init``: a weights file) fine-tuning those weights;
     returns (net (train mode, on the CPU), stats dict)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     N, h, w = images.shape[:3]
-    net = LineNet(width, stem).to(device)
+    net = initial_net(init, width, stem).to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     steps = max(1, epochs * int(np.ceil(N / batch)))
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps, eta_min=1e-5)
@@ -107,7 +124,7 @@ def train(images: np.ndarray, segments: np.ndarray, epochs: int = 30, seed: int 
     net = net.cpu()
     return net, {"epochs": epochs, "final_loss": losses[-1] if losses else float("nan"),
                  "train_seconds": round(time.perf_counter() - t0, 1), "device": device, "batch": batch,
-                 "lr": lr}
+                 "lr": lr, "init": None if init is None else str(init)}
 
 
 def save(net, path, meta: dict) -> None:
