@@ -26,6 +26,7 @@ from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.estimate.options import EstimatorOptions
 from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
 from graphtrack.eval.overlay import OverlayWriter
+from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
@@ -296,6 +297,7 @@ class _Run:
     frame_ms: list = field(default_factory=list)
     skipped: SkipCounter = field(default_factory=SkipCounter)
     read: int = 0
+    informative: list = field(default_factory=list)   # per tracked frame: a shaft or marker detected
 
     @property
     def last_stamp(self) -> float | None:
@@ -397,6 +399,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             ms["write"] = 1e3 * (time.perf_counter() - t)
             ms["decode"] = t_decode
             run.add(frame, est.E, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
+            run.informative.append(obs is not None and (obs.has_shaft or len(obs.markers) > 0))
         _refine(pipe, run, writer, extra)
     wall = time.perf_counter() - t_wall
     if bar is not None:
@@ -405,6 +408,11 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         overlay.close()
     result = _result(path, out, options, rec, ctx, run, pipe.left_only)
     result.update(run.summary(wall))
+    if pipe.needs_images:
+        result["no_detection_stretches"] = stretches = no_detection_stretches(run.frames, run.informative)
+        for a, b in stretches:
+            _warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
+                  "motion model's prediction (std_* columns grow)", quiet)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
 

@@ -68,8 +68,16 @@ def test_bad_values_name_the_option(extra, what):
         options_from_args(args)
 
 
+def test_no_search_flag():
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--no-search"])
+    assert options_from_args(args).estimation.search is False
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O"])
+    assert options_from_args(args).estimation.search is EstimatorOptions.search is True
+
+
 def test_estimator_keywords():
-    assert EstimatorOptions(particles=7, seed=2).keywords("pf") == {"particles": 7, "seed": 2}
-    assert EstimatorOptions(lag=2.0).keywords("smoother") == {"lag": 2.0, "smoother": "isam2"}
+    assert EstimatorOptions(particles=7, seed=2).keywords("pf") == {"particles": 7, "seed": 2, "search": True}
+    assert EstimatorOptions(lag=2.0).keywords("smoother") == {"lag": 2.0, "smoother": "isam2", "search": True}
+    assert EstimatorOptions(search=False).keywords("pf")["search"] is False
     assert EstimatorOptions(edge_bias=False).keywords("batch") == {"edge_bias": False}
     assert EstimatorOptions().keywords("kinematics") == {}

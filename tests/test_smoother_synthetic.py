@@ -150,7 +150,8 @@ def test_markers_wait_for_the_shaft_at_start_up():
     until start_up_wait frames have passed."""
     robot, cam, E0, frames = sequence(12, seed=4, scene=SCENE, pixel_noise=1.0, marker_noise=1.0)
     for wait, moved_at in ((30, 5), (3, 3)):
-        est = make_estimator("smoother", TrackingContext(robot, cam, E0), start_up_wait=wait)
+        est = make_estimator("smoother", TrackingContext(robot, cam, E0), start_up_wait=wait,
+                             search=False)  # the wait is the no-search start-up; the search scores markers per hypothesis
         for f in frames:
             obs = (Observation("line-intensities", markers=f.markers) if f.index < 5
                    else Observation("line-intensities", pixels=f.pixels, markers=f.markers))

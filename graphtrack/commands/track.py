@@ -44,6 +44,10 @@ def add_estimator_arguments(p, particles: bool = True, smoother: bool = True) ->
                        help="smoother: fixed lag")
         p.add_argument("--smoother", choices=SMOOTHER_KINDS, default=EstimatorOptions.smoother,
                        help="smoother: gtsam IncrementalFixedLagSmoother (isam2) or BatchFixedLagSmoother")
+    if particles or smoother:
+        p.add_argument("--no-search", action="store_true",
+                       help="pf/smoother: no global start-up search, divergence monitor or re-initialisation "
+                            "(the local start-up, for comparisons)")
     p.add_argument("--seed", type=int, default=TrackOptions.seed,
                    help="seed of the RANSAC observation models and the particle filter")
 
@@ -84,7 +88,8 @@ def estimator_options_from_args(args) -> EstimatorOptions:
     d = EstimatorOptions()
     return EstimatorOptions(particles=getattr(args, "particles", d.particles), seed=args.seed,
                             lag=getattr(args, "lag", d.lag), smoother=getattr(args, "smoother", d.smoother),
-                            edge_bias=not getattr(args, "no_edge_bias", False)).check()
+                            edge_bias=not getattr(args, "no_edge_bias", False),
+                            search=not getattr(args, "no_search", False)).check()
 
 
 def options_from_args(args) -> TrackOptions:

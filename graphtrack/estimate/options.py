@@ -14,6 +14,7 @@ PARTICLES = 1000      #: particle filter: particles
 LAG_S = 1.0           #: fixed-lag smoother: lag (s)
 SMOOTHER = "isam2"    #: fixed-lag smoother: gtsam IncrementalFixedLagSmoother ("isam2") or Batch ("batch")
 SMOOTHER_KINDS = ("isam2", "batch")
+SEARCH = True         #: pf and smoother: global start-up search and re-initialisation (estimate/reinit.py)
 
 
 @dataclass(frozen=True)
@@ -21,13 +22,17 @@ class EstimatorOptions:
     """particles and seed (its resampling draws): pf; lag (s) and smoother: the
     fixed-lag smoother; edge_bias: the edge-bias state of the smoother and the batch
     (off for edges known to be unbiased); tuned: further constructor keywords of
-    the chosen estimator (e.g. a tuned set of its constants), passed as they are."""
+    the chosen estimator (e.g. a tuned set of its constants), passed as they are;
+    search: the pf's and the smoother's global start-up search, divergence monitor
+    and re-initialisation (:mod:`graphtrack.estimate.reinit`; off: the local
+    start-up of before, for comparisons)."""
 
     particles: int = PARTICLES
     seed: int = 0
     lag: float = LAG_S
     smoother: str = SMOOTHER
     edge_bias: bool = True
+    search: bool = SEARCH
     tuned: dict = field(default_factory=dict)
 
     def check(self) -> EstimatorOptions:
@@ -47,6 +52,8 @@ class EstimatorOptions:
             kw = {"particles": self.particles, "seed": self.seed}
         elif estimator == "smoother":
             kw = {"lag": self.lag, "smoother": self.smoother}
+        if estimator in ("pf", "smoother"):
+            kw["search"] = self.search
         if estimator in ("smoother", "batch") and not self.edge_bias:
             kw["edge_bias"] = False
         return {**kw, **self.tuned}

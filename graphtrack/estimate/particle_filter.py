@@ -61,13 +61,16 @@ import numpy as np
 
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
-from graphtrack.estimate.options import PARTICLES
+from graphtrack.estimate.options import PARTICLES, SEARCH
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
+from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
+from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
 from graphtrack.geometry.se3 import project_to_so3, so3_exp_batch
+from graphtrack.robot.features import base_features
 
 
 class ParticleFilter:
@@ -105,7 +108,10 @@ class ParticleFilter:
                  gate_scale: float = 1.0,
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
-                 marker_huber_k: float = om.MARKER_HUBER_K):
+                 marker_huber_k: float = om.MARKER_HUBER_K,
+                 search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
+                 search_hypotheses: int = 2048, reinit_gap: int = 30,
+                 marker_gate_follows_covariance: bool = False):
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
@@ -127,12 +133,24 @@ class ParticleFilter:
         if marker_loss not in om.MARKER_LOSSES:
             raise ValueError(f"unknown marker loss {marker_loss!r}")
         self.marker_gamma = float(marker_gamma)
-        self.marker_gate = float(marker_gate) * float(gate_scale)
+        self.marker_gate = self.configured_gate = float(marker_gate) * float(gate_scale)
+        self.gate_scale = float(gate_scale)
+        self.gate_follows = bool(marker_gate_follows_covariance)   # estimate/gating.py; off: see its doc
         self.marker_options = dict(loss=marker_loss, sigma=float(marker_sigma),
                                    huber_k=float(marker_huber_k))
         self._buffers: dict = {}
         self._buffers_right: dict = {}   # the right image's pixel buffers (its own sizes)
         self._geometry_cache = None
+        self.search_std = np.array([search_std_b] * 3 + [search_std_w] * 3, dtype=float)
+        self.search = None
+        if search:
+            self.search = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, gate_scale, markers,
+                                     seed=seed, n=search_hypotheses, gamma_rho=gamma_rho,
+                                     gamma_theta=gamma_theta, use_edge_ids=use_edge_ids,
+                                     pixel_sigma=pixel_sigma, pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
+                                     marker_gamma=marker_gamma, marker_gate=marker_gate,
+                                     pixel_effective_count=pixel_effective_count, marker_loss=marker_loss,
+                                     marker_sigma=marker_sigma, marker_huber_k=marker_huber_k)
         self.reset()
 
     # -- state ------------------------------------------------------------------------
@@ -144,6 +162,7 @@ class ParticleFilter:
         self.t = 0
         self.x_mean = centre.copy()
         self.R_mean = so3_exp_batch(centre[None, 3:])[:, :, 0]
+        self.cov = np.diag(self.init_std ** 2)
 
     @property
     def weights(self) -> np.ndarray:
@@ -240,7 +259,13 @@ class ParticleFilter:
             self.predict()
         self.t += 1
         h = self._project(q)
-        if self._informative(observation) or (right is not None and self._informative(right)):
+        informative = self._informative(observation)
+        if self.search is not None and self.search.propose(q, observation, self.E, informative) is not None:
+            self._redraw(self.search.result)  # start-up, long gap or divergence: global search (left view)
+            h = self._project(q)
+        if self.gate_follows and informative and len(observation.markers):
+            self._gate_markers(q)
+        if informative or (right is not None and self._informative(right)):
             self.logw = normalize_log_weights(self.logw + self._loglik(h, observation)
                                               + self._loglik_right(q, None, h, right))
         w = np.exp(self.logw)
@@ -249,13 +274,37 @@ class ParticleFilter:
         self.x_mean = w @ self.x
         self.R_mean = project_to_so3((h.R.reshape(9, -1) @ w).reshape(3, 3))
         dx = self.x - self.x_mean
-        cov = (dx * w[:, None]).T @ dx
+        cov = self.cov = (dx * w[:, None]).T @ dx
         est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,
                        extra={**dict(zip(STD_COLUMNS, map(float, np.sqrt(np.diag(cov))))),
                               "ess": ess})
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est
+
+    def _gate_markers(self, q) -> None:
+        """The marker gate of this frame from the predicted cloud's covariance
+        (:mod:`graphtrack.estimate.gating`)."""
+        if self.use_markers:
+            self.marker_gate = marker_gate(base_features(self.robot, q).transformed(self.E).points, self.K,
+                                           self.cov + np.diag(self.motion_std ** 2), self.configured_gate,
+                                           self.marker_options["sigma"], self.gate_scale)
+
+    def _redraw(self, res) -> None:
+        """Redraw the cloud from a search result (:mod:`graphtrack.estimate.reinit`):
+        x_n ~ N(res.x, C), C the search's elite covariance with per-axis stds clipped
+        to [init_std / 8, init_std], weighted by prior / proposal density."""
+        sd = np.sqrt(np.clip(np.diag(res.cov), 0.0, None))
+        scale = np.clip(sd, self.init_std / 8, self.init_std) / np.maximum(sd, 1e-300)
+        C = scale[:, None] * res.cov * scale[None, :] + np.diag((1e-3 * self.init_std) ** 2)
+        L = np.linalg.cholesky(0.5 * (C + C.T))
+        z = self.rng.standard_normal((self.N, 6))
+        self.x = res.x + z @ L.T
+        # importance weights prior / proposal: the search proposes, the prior (the
+        # search's hand-eye prior N(0, diag(spread^2))) keeps its say
+        self.logw = normalize_log_weights(-0.5 * np.sum((self.x / self.search.spread) ** 2, axis=1)
+                                          + 0.5 * np.sum(z * z, axis=1))
+        self.cov = C
 
     def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
         """Systematic resampling, then roughening with (roughening^2) Sigma."""

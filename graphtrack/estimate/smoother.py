@@ -80,15 +80,19 @@ to 20 mm), whose first seconds move the estimate by degrees.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
-from graphtrack.estimate.options import LAG_S, SMOOTHER
+from graphtrack.estimate.options import LAG_S, SEARCH, SMOOTHER
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
+from graphtrack.estimate.gating import marker_gate
+from graphtrack.estimate.reinit import SearchInit
+from graphtrack.robot.features import base_features
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussian_bw,
                                        key, left_from_right_cov, split_options)
 from graphtrack.estimate.stereo import stereo_factor_groups
@@ -125,7 +129,9 @@ class FixedLagSmootherEstimator:
                  relinearize_threshold: float = 1e-2, settled_relinearize_threshold: float = 2e-2,
                  settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
-                 start_up_wait: int = 30, **options):
+                 start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
+                 search_std_w: float = 0.05, reinit_gap: int = 30, jump_sigma_b: float = 5e-3,
+                 jump_sigma_w: float = 0.035, marker_gate_follows_covariance: bool = False, **options):
         import gtsam
 
         self.gtsam = gtsam
@@ -177,6 +183,15 @@ class FixedLagSmootherEstimator:
         self.t0 = None
         self.last_stamp = None
         self.timings_ms: list[float] = []
+        self.reinit = None
+        self.last_cov = None          # marginal covariance of the last x_t (the marker gate)
+        self.gate_follows = bool(marker_gate_follows_covariance)   # estimate/gating.py; off: see its doc
+        self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
+        if search:
+            self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
+                                     markers)
+            self.start_up_wait = 0    # the search associates markers per hypothesis
+        self.jump_noise = gaussian_bw(self.E0, jump_sigma_b, jump_sigma_w)
 
     # -- helpers ---------------------------------------------------------------------
     def _stamp(self, frame: Frame) -> float:
@@ -195,11 +210,24 @@ class FixedLagSmootherEstimator:
             return None
         return left_from_right_cov(pose.matrix(), np.asarray(C))
 
-    def _start_up(self, k: int, shaft: list, markers: list, x: int):
+    def _gated_options(self, q, observation):
+        """The factor options with this frame's marker gate from the last marginal
+        covariance (:mod:`graphtrack.estimate.gating`); the configured gate without one."""
+        o = self.fopts
+        if not self.gate_follows or self.last_cov is None or observation is None or not len(observation.markers):
+            return o
+        C = self.last_cov + self.motion_cov
+        points = base_features(self.ctx.robot, q).transformed(self.last.matrix()).points
+        g = marker_gate(points, self.K, C, o.marker_gate * o.gate_scale, o.marker_sigma, o.gate_scale)
+        return dataclasses.replace(o, marker_gate=g / o.gate_scale)
+
+    def _start_up(self, k: int, shaft: list, markers: list, x: int, init=None):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
         that frame's factors + a prior at the current estimate (the hand-eye prior's
         spread). iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
-        error of several mm / deg overshoot into a wrong data association."""
+        error of several mm / deg overshoot into a wrong data association.
+        ``init``: the initial value (the start-up search's mode) when it is not
+        the prior's centre: the search picks the basin, the prior keeps its say."""
         gtsam = self.gtsam
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.start_up_iterations)
@@ -208,7 +236,7 @@ class FixedLagSmootherEstimator:
         # step overshoots ~2x and lambda * I (up to 1e5) cannot shorten it enough
         params.setDiagonalDamping(True)
         params.setlambdaUpperBound(1e12)
-        pose = self.last
+        pose = self.last if init is None else init
         for stage in ([shaft, shaft + markers] if shaft and markers else [shaft + markers]):
             g = gtsam.NonlinearFactorGraph()
             g.add(gtsam.PriorFactorPose3(x, self.last, self.prior_noise))
@@ -258,20 +286,31 @@ class FixedLagSmootherEstimator:
         # the window timestamp of this frame's variables: with the edge-bias state the
         # bias block's first frame, so that the block's variables leave together
         stamp = self.bias_stamp if self.bias else t
+        shaft, markers = stereo_factor_groups(k, frame.q, observation, right, self.ctx, self.K,
+                                              self._gated_options(frame.q, observation), self.E0, pose_key=x,
+                                              line_bias=self.settled)
+        jump, found = False, None
+        if self.reinit is not None:   # start-up / re-initialisation: initial value from the search
+            found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers))
+            if found is not None:
+                found = gtsam.Pose3(found)
+                jump = self.started   # re-initialisation: a loose motion factor lets x_t move there
+                if jump:
+                    self.last = found
         if k == 0:
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
-            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
+            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(),
+                                               self.jump_noise if jump else self.motion_noise))
         self.prev_key = x
-        shaft, markers = stereo_factor_groups(k, frame.q, observation, right, self.ctx, self.K,
-                                              self.fopts, self.E0, pose_key=x,
-                                              line_bias=self.settled)
+        if jump:
+            self.last = self._start_up(k, shaft, markers, x)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen
                 self.waited += 1
             if shaft or markers:
-                self.last = self._start_up(k, shaft, markers, x)
+                self.last = self._start_up(k, shaft, markers, x, init=found)
                 self.started = True
                 self.start_stamp = t
         for f in shaft + markers:
@@ -290,6 +329,7 @@ class FixedLagSmootherEstimator:
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
         cov = self._marginal(x, pose) if self.covariance else None
+        self.last_cov = cov
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)
         extra = estimate_extra(cov)

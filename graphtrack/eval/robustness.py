@@ -89,3 +89,27 @@ def recording_figures(err: np.ndarray, baseline: np.ndarray, disturbances: list[
             "reacquire_frames": reacquisition_frames(e, disturbances, threshold),
             "reacquire_segments": [b - a for a, b in segs if a > 0],
             "worst_window_excess_px": worst_window_excess(e, baseline, window)}
+
+
+#: the shortest stretch of frames without detections that the tracker reports (frames)
+NO_DETECTION_FRAMES = 15
+
+
+def no_detection_stretches(frames: list[int], informative: list[bool],
+                           min_frames: int = NO_DETECTION_FRAMES) -> list[list[int]]:
+    """[start, end) frame-index intervals of at least ``min_frames`` consecutive tracked
+    frames whose observation had no shaft and no marker (the estimate there is the
+    motion model's prediction). ``frames``: tracked frame indices in order; ``informative``:
+    per tracked frame, whether its observation had a detection."""
+    out, start, count = [], None, 0
+    for i, (f, ok) in enumerate(zip(frames, informative)):
+        if not ok:
+            if start is None:
+                start, count = f, 0
+            count += 1
+        if ok or i == len(frames) - 1:
+            if start is not None and count >= min_frames:
+                out.append([int(start), int(f if ok else f + 1)])
+            if ok:
+                start = None
+    return out

@@ -1,0 +1,79 @@
+"""Marker association gates that follow the estimate's covariance.
+
+A marker point X (camera frame, at the current estimate E_t) moves under a left
+correction (b, w) of E as dX = b + w x X = A(X) (b, w), A = [I, -[X]x]; its
+projection moves by J(X) dX, J the pinhole Jacobian
+[[f_x / z, 0, -f_x x / z^2], [0, f_y / z, -f_y y / z^2]]. With C (6x6) the
+covariance of (b, w) (m, rad; the estimators' ``Estimate.cov``), the predicted
+marker's image covariance is P = J A C A^T J^T (px^2). The gate (px) is
+
+    g = n_sigma * sqrt(lambda_max(P) + sigma^2)
+
+maximised over the markers in front of the camera (one gate per frame, as the
+association takes), with sigma (px) the detections' own noise, and clipped to
+[configured gate, ``ceil``]: it widens with the estimate's uncertainty (a long
+gap, a re-initialisation, a wide particle cloud) and returns to the configured
+gate as the estimate becomes confident. It does not shrink below it: the
+estimators' covariances are over-confident exactly when the lock is wrong (a
+start-up LM on the shaft alone leaves E 12 mm off with a tight marginal), and
+markers 100+ px off are what pulls them back (docs/decisions/marker-gate.md;
+a 20 px floor left the smoother 16 mm off on a 16 mm start, the PF 0.6 mm
+instead of 0.2 mm after a hidden stretch). Without a usable covariance (None,
+non-finite) the configured gate is kept.
+
+Off by default in both estimators (``marker_gate_follows_covariance``): widening
+is harmful too. After the smoother's shaft-only start-up its marginal spans
+150 px of marker motion, the Hungarian association in that gate pairs markers
+100+ px off wrongly, and a 16 mm start ended 18.8 mm off instead of 1.05 mm
+(tests/test_smoother_synthetic.py, seed 86); the fixed, tuned gate excludes
+them until the shaft has converged. In the particle filter the gate is the cap
+of the robust marker cost, part of its tuned likelihood.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+N_SIGMA = 3.0          #: gate half-width in standard deviations of the predicted marker
+CEIL_PX = 150.0        #: widest gate (detection pixels)
+
+
+def marker_image_covariances(points: np.ndarray, K: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """P_i (M, 2, 2) px^2 of camera-frame points (M, 3) m under a left (b, w) covariance cov (6, 6)."""
+    X = np.asarray(points, float).reshape(-1, 3)
+    x, y, z = X[:, 0], X[:, 1], X[:, 2]
+    fx, fy = K[0, 0], K[1, 1]
+    J = np.zeros((len(X), 2, 3))
+    J[:, 0, 0] = fx / z
+    J[:, 0, 2] = -fx * x / z ** 2
+    J[:, 1, 1] = fy / z
+    J[:, 1, 2] = -fy * y / z ** 2
+    A = np.zeros((len(X), 3, 6))
+    A[:, :, :3] = np.eye(3)
+    A[:, 0, 4], A[:, 0, 5] = z, -y        # -[X]x: w x X = (w_y z - w_z y, w_z x - w_x z, w_x y - w_y x)
+    A[:, 1, 3], A[:, 1, 5] = -z, x
+    A[:, 2, 3], A[:, 2, 4] = y, -x
+    G = J @ A                               # (M, 2, 6)
+    return G @ np.asarray(cov, float) @ np.swapaxes(G, 1, 2)
+
+
+def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate: float,
+                sigma: float, scale: float = 1.0, n_sigma: float = N_SIGMA,
+                floor: float | None = None, ceil: float = CEIL_PX) -> float:
+    """The gate (px, full size) of the module doc.
+
+    points (M, 3): marker points in the camera frame at the current estimate (m);
+    K: intrinsics (full-size px); cov: (6, 6) left (b, w) covariance or None;
+    gate: the configured gate (full-size px), returned when cov is unusable or no
+    marker is in front of the camera; sigma: detection noise (px); scale: full-size
+    pixels per detection pixel; floor (default: the configured gate) and ceil in
+    detection pixels.
+    """
+    X = np.asarray(points, float).reshape(-1, 3)
+    X = X[np.all(np.isfinite(X), axis=1) & (X[:, 2] > 1e-3)] if len(X) else X
+    if cov is None or len(X) == 0 or not np.all(np.isfinite(cov)):
+        return float(gate)
+    P = marker_image_covariances(X, K, cov)
+    lam = np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, 1, 2)))[:, -1]
+    g = n_sigma * np.sqrt(np.max(np.clip(lam, 0.0, None)) + sigma ** 2)
+    lo = float(gate) if floor is None else floor * scale
+    return float(np.clip(g, lo, max(lo, ceil * scale)))

@@ -1,0 +1,148 @@
+"""When and where an online estimator (re-)initialises: the global search of
+:mod:`graphtrack.estimate.startup` at start-up, after a long stretch without
+detections, and when :mod:`graphtrack.estimate.divergence` flags a lost lock.
+
+:class:`SearchInit` is the policy object of the smoother and the particle filter.
+``propose(q, observation, E_current, informative)`` is called once per frame and
+returns a new initial E (4x4), or None to keep tracking; the adopted search result
+(x relative to E_ref = the hand-eye prior, and its elite covariance) is ``result``.
+
+- Start-up, the first informative frame (shaft or markers): the search over
+  N(E_current, diag(spread^2)) (spread = (b m, w rad) per axis); its mode is
+  adopted at once (nothing is locked yet).
+- Re-initialisation: the same search around the current estimate, its prior
+  term the hand-eye prior N(0, diag(spread^2)); a mode x_c outside the hand-eye
+  prior (|x_c / spread|^2 > ``prior_gate``, chi^2_6's 99.9 % point: the lumped
+  error never leaves it) is rejected.
+- After a gap (an informative frame after ``gap`` or more frames without one)
+  on which the prediction explains little (misfit above the monitor's
+  threshold: the tool moved while unseen) nothing is locked: x_c is adopted when
+  it explains this frame better than the prediction by more than ``margin``
+  nats. A prediction that still fits keeps its lock (the monitor watches it).
+- When the divergence monitor fires, a lock exists that may be right (a partial
+  or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
+  only after a sequential likelihood-ratio test over the next ``confirm``
+  informative frames with the candidate held fixed:
+
+      Lambda = sum_t [log P(z_t | E(x_c)) - log P(z_t | E_t^current)] > confirm * margin
+
+  and the candidate's own mean misfit (:func:`graphtrack.estimate.divergence.misfit`)
+  under the monitor's threshold while the current estimate's stays above it (a
+  lock that recovers by itself, e.g. as an occluder slides out, is kept), and the
+  candidate still ahead on the last of those
+  frames; the search then runs again on that frame around x_c (the candidate was
+  fit to a frame ``confirm`` frames old) and its mode is adopted. A single frame cannot decide: under a full
+  occlusion by another instrument nothing explains the frame and a hypothesis
+  on the occluder's edges wins that frame; as the tool moves with its readings
+  and the occluder does not, such a candidate loses the following frames. A
+  correct lock is kept; a wrong or lost one is replaced ``confirm`` frames later.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from graphtrack.estimate.divergence import DivergenceMonitor, misfit
+from graphtrack.estimate.startup import Scorer, SearchResult, global_search
+from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
+
+#: chi^2 with 6 degrees of freedom, 99.9 % point: the hand-eye prior's extent
+PRIOR_GATE = 22.46
+
+
+@dataclass
+class _Candidate:
+    result: SearchResult
+    llr: float = 0.0          # summed log-likelihood ratio candidate - current (nats)
+    misfits: float = 0.0      # summed misfit of the candidate
+    current: float = 0.0      # summed misfit of the current estimate
+    frames: int = 0
+
+
+class SearchInit:
+    """Start-up / re-initialisation policy (module doc). ``count``: searches adopted;
+    ``searches``: searches run."""
+
+    def __init__(self, ctx, spread=(6e-3, 0.05), gap: int = 30, gate_scale: float = 1.0,
+                 markers: bool = True, margin: float = 5.0, seed: int = 0, monitor: bool = True,
+                 n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE, **scorer_options):
+        b, w = spread
+        self.spread = np.array([b] * 3 + [w] * 3, float)
+        self.gap = int(gap)
+        self.margin = float(margin)
+        self.confirm = int(confirm)
+        self.prior_gate = float(prior_gate)
+        self.E_ref = np.asarray(ctx.handeye, float)
+        self.scorer = Scorer(ctx, markers=markers, gate_scale=gate_scale, **scorer_options)
+        self.n = int(n)
+        self.rng = np.random.default_rng(seed)
+        self.since = None            # informative frames: None before the first, else frames since
+        self.count = self.searches = 0
+        self.result = None           # the adopted SearchResult (x relative to E_ref)
+        self.candidate: _Candidate | None = None
+        self.monitor = DivergenceMonitor() if monitor else None
+
+    def _x(self, E: np.ndarray) -> np.ndarray:
+        return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
+
+    def _adopt(self, res: SearchResult) -> np.ndarray:
+        if self.monitor is not None:
+            self.monitor.reset()
+        self.candidate = None
+        self.count += 1
+        self.result = res
+        return bw_to_matrix(res.x) @ self.E_ref
+
+    def _search(self, q, observation, x_cur, prior_centre=None) -> SearchResult:
+        self.searches += 1
+        return global_search(lambda x, s: self.scorer(q, observation, x, s), x_cur, self.spread, self.rng,
+                             n=self.n, prior_centre=prior_centre)
+
+    def _test(self, q, observation, ll_cur: float, m_cur: float) -> np.ndarray | None:
+        """One frame of the candidate's sequential likelihood-ratio test (module doc)."""
+        c = self.candidate
+        xc = c.result.x
+        ll_c, floor = self.scorer.with_floor(q, observation, xc)
+        m = misfit(ll_c, floor)
+        c.llr += ll_c - ll_cur
+        c.misfits += m if np.isfinite(m) else 1.0
+        c.current += m_cur if np.isfinite(m_cur) else 0.0
+        c.frames += 1
+        if c.frames < self.confirm:
+            return None
+        threshold = self.monitor.threshold if self.monitor is not None else 0.5
+        still_lost = c.current / c.frames > threshold
+        if still_lost and c.llr > self.confirm * self.margin and c.misfits / c.frames < threshold \
+                and ll_c - ll_cur > self.margin:
+            # confirmed: the mode is searched afresh on this frame, around the candidate
+            return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
+        self.candidate = None
+        return None
+
+    def propose(self, q, observation, E_current: np.ndarray, informative: bool) -> np.ndarray | None:
+        if not informative:
+            if self.since is not None:
+                self.since += 1
+            return None
+        x_cur = self._x(E_current)
+        if self.since is None:                      # start-up
+            self.since = 0
+            return self._adopt(self._search(q, observation, x_cur))
+        ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
+        m_cur = misfit(ll_cur, floor)
+        diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
+        threshold = self.monitor.threshold if self.monitor is not None else 0.5
+        after_gap = self.since >= self.gap and not m_cur <= threshold   # the prediction explains nothing
+        self.since = 0
+        if self.candidate is not None and not after_gap:
+            return self._test(q, observation, ll_cur, m_cur)
+        if not (after_gap or diverged):
+            return None
+        res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
+        if np.sum((res.x / self.spread) ** 2) > self.prior_gate:
+            return None
+        if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test
+            return self._adopt(res) if res.loglik > ll_cur + self.margin else None
+        self.candidate = _Candidate(res)
+        return self._test(q, observation, ll_cur, m_cur)
