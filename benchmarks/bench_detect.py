@@ -222,11 +222,9 @@ def _table(std: dict, rnd: dict) -> str:
 def run(results: dict, frames: int = FRAMES, sold2: str | None = None, log=print, recordings: int = RECORDINGS,
         rand_frames: int = RAND_FRAMES, weights=None) -> dict:
     """Fill results["detect"]: the standard figures per detector, ["randomized"], ["tables"]."""
-    import cv2
-    import torch
+    from graphtrack.threads import limit_threads
 
-    torch.set_num_threads(1)
-    cv2.setNumThreads(1)
+    limit_threads(1)
     dets = _detectors(sold2, weights)
     out = _standard(dets, frames, log) if frames > 0 else {}
     if recordings > 0:

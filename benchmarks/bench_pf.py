@@ -115,13 +115,10 @@ class LoopFilter:
 
 
 def run(results: dict) -> dict:
-    try:
-        import torch
-
-        torch.set_num_threads(1)
-    except ImportError:  # pragma: no cover
-        pass
     from graphtrack.estimate.particle_filter import ParticleFilter
+    from graphtrack.threads import limit_threads
+
+    limit_threads(1)
 
     out = results.setdefault("pf", {})
     scene, frames = _inputs()

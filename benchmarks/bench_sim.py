@@ -37,9 +37,9 @@ def _one(scene: str, seed: int, tmp: Path) -> tuple[float, float]:
 
 
 def run(results: dict) -> dict:
-    import cv2
+    from graphtrack.threads import limit_threads
 
-    cv2.setNumThreads(1)
+    limit_threads(1)
     out = results.setdefault("sim", {})
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)

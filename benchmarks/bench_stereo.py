@@ -139,12 +139,9 @@ def _pf(out: dict) -> None:
 def run(results: dict) -> dict:
     import tempfile
 
-    try:
-        import torch
+    from graphtrack.threads import limit_threads
 
-        torch.set_num_threads(1)
-    except ImportError:  # pragma: no cover
-        pass
+    limit_threads(1)
     out = results.setdefault("stereo", {})
     out["recordings"] = [f"{s}:{seed}" for s, seed in RECORDINGS]
     _pf(out)

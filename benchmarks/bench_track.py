@@ -166,15 +166,9 @@ def busy_core(res: dict) -> None:
 
 
 def run(results: dict) -> dict:
-    import cv2
+    from graphtrack.threads import limit_threads
 
-    cv2.setNumThreads(1)
-    try:
-        import torch
-
-        torch.set_num_threads(1)
-    except ImportError:
-        pass
+    limit_threads(1)
     res = results.setdefault("track", {})
     rows = ["| configuration | frames/s | " + " | ".join(f"{s} ms" for s in STAGES) + " |",
             "|---" * (len(STAGES) + 2) + "|"]
