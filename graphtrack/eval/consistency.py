@@ -46,6 +46,12 @@ def nees_band(runs: int, dof: int = 6, level: float = 0.95) -> tuple[float, floa
     return float(lo), float(hi)
 
 
+def _observation(f, model: str) -> Observation:
+    if model in POLAR_MODELS:
+        return Observation(model, lines=f.lines, markers=f.markers)
+    return Observation(model, pixels=f.pixels, markers=f.markers)
+
+
 def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int = 200, seed: int = 0,
                      prior_std=None, walk_sigma=(2.5e-5, 1e-4), model: str = "line-intensities",
                      progress: bool = False, **observe_kw) -> NeesResult:
@@ -58,7 +64,9 @@ def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int
     or, with ``prior_std`` = (m, rad), one drawn from N(0, diag(prior_std^2)),
     the true E following the random walk ``walk_sigma`` (m, rad per frame),
     observed with ``observe_kw`` (pixel_noise, marker_noise, pixels_per_edge,
-    ...); scored at one frame k_r ~ U[first, last).
+    ...); scored at one frame k_r ~ U[first, last). Stereo: a ``sequence`` that
+    returns right_frames (:func:`graphtrack.sim.synthetic.stereo_sequence`) gives each
+    estimator a stereo context and each step the right image's observation.
     """
     pick = np.random.default_rng(seed)
     values = []
@@ -66,15 +74,14 @@ def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int
         k_r = int(pick.integers(first, last))
         if prior_std is not None:
             observe_kw["handeye_error"] = pick.standard_normal(6) * np.repeat(np.asarray(prior_std, float), 3)
-        robot, cam, E0, frames = sequence(k_r + 1, seed=seed + 1 + r,
-                                          walk_sigma=walk_sigma, **observe_kw)
-        est = make(TrackingContext(robot, cam, E0))
-        for f in frames:
-            if model in POLAR_MODELS:
-                obs = Observation(model, lines=f.lines, markers=f.markers)
-            else:
-                obs = Observation(model, pixels=f.pixels, markers=f.markers)
-            e = est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), obs)
+        seq = sequence(k_r + 1, seed=seed + 1 + r, walk_sigma=walk_sigma, **observe_kw)
+        robot, cam, E0, frames = seq[:4]
+        right = getattr(seq, "right_frames", None)
+        est = make(TrackingContext(robot, cam, E0) if right is None else seq.ctx)
+        for i, f in enumerate(frames):
+            fr = Frame(f.index, f.stamp, None, f.q[:6], f.q[6])
+            e = (est.step(fr, _observation(f, model)) if right is None
+                 else est.step(fr, _observation(f, model), _observation(right[i], model)))
         x = left_error(frames[-1].E_true, e.E)
         values.append(float(x @ np.linalg.solve(e.cov, x)))
     v = np.array(values)

@@ -51,6 +51,7 @@ from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, marker_discs
 from graphtrack.robot.psm import psm_large_needle_driver
+from graphtrack.sim.stereo import rig, right_camera, to_right
 
 #: Joint centre of the trajectory (6 DH joints in rad / m, then the jaw in rad).
 Q0 = np.array([0.15, -0.10, 0.14, 0.40, 0.15, -0.10, 0.40])
@@ -240,6 +241,40 @@ def sequence(n: int, seed: int = 0, fps: float = 30.0, handeye_error=HANDEYE_ERR
         k = start + i
         frames.append(observe(scene, Q[i], E, rng, index=k, stamp=k / fps, **observe_kw))
     return Sequence(scene.robot, scene.camera, scene.E0, frames)
+
+
+class StereoSequence(NamedTuple):
+    """:func:`sequence`'s recording seen by a stereo rig: the left Sequence's fields,
+    the right camera (undistorted pixels share its K2), right_T_left (4x4, m) and the
+    right image's frames (same q; their E_true is the right camera's right_T_left . E_true)."""
+
+    robot: object
+    camera: Camera
+    E0: np.ndarray
+    frames: list
+    right: Camera
+    right_T_left: np.ndarray
+    right_frames: list
+
+    @property
+    def ctx(self):
+        return TrackingContext(self.robot, self.camera, self.E0, self.right, self.right_T_left)
+
+
+def stereo_sequence(n: int, seed: int = 0, scene: Scene | None = None, extrinsics=None, **kw) -> StereoSequence:
+    """:func:`sequence` (n, seed, scene, ``kw``: its keywords and :func:`observe`'s),
+    whose left frames are exactly those of ``sequence(n, seed, ...)``, plus the right
+    image's: the right camera of :func:`graphtrack.sim.stereo.right_camera` and the rig
+    ``extrinsics`` = (R, T m) (default :func:`graphtrack.sim.stereo.rig`: 5 mm, 2 deg), its
+    noise drawn from its own rng (seed ``seed`` + 10**6)."""
+    left = sequence(n, seed=seed, scene=scene, **kw)
+    C = to_right(*(extrinsics if extrinsics is not None else rig()))
+    cam_r = right_camera(left.camera)
+    obs_kw = {k: v for k, v in kw.items() if k not in ("fps", "handeye_error", "walk_sigma", "amplitude", "start")}
+    rng = np.random.default_rng(seed + 10**6)
+    view = Scene(left.robot, cam_r, left.E0)
+    right = [observe(view, f.q, C @ f.E_true, rng, index=f.index, stamp=f.stamp, **obs_kw) for f in left.frames]
+    return StereoSequence(*left, cam_r, C, right)
 
 
 def pose_error(E_est: np.ndarray, E_true: np.ndarray) -> tuple[float, float]:
