@@ -1,41 +1,25 @@
 """The detector's edge bias: a slowly varying state per projected limb.
 
-A line detector errs by the whole edge, and by nearly the same amount from one
-frame to the next: the learned detector's heatmap (1/4 scale) puts the pixel
-sets of the benchmark recordings 1-1.6 px off the true limb near the image
-border and at the wrist end, persistently (benchmarks/RESULTS.md). Counted as
-independent pixel noise, that error is averaged over frames as if it were
-information, and the shaft's weakly seen directions (the depth tilt, seen only
-through the limbs' slight convergence, and with it the slide of the tip along
-the shaft) lock onto it; the more frames an estimator uses, the tighter.
-
-So each frame k carries, next to E_k, the bias vector (px)
+A line detector errs by the whole edge, by nearly the same amount from frame to
+frame (why this is a state, with measurements: docs/decisions/edge-bias-state.md).
+Each frame k carries, next to E_k, the bias vector (px)
 
     b_k = (l, l_s, w, w_s)
 
-the lateral offset l and its slope l_s (both edges shifted the same way in
-the image: a shift or turn of the shaft's image) and the width offset w and
-its slope w_s (both edges moved the same way relative to the shaft: a wider
-or narrower, more or less converging shaft image, i.e. a depth or depth-tilt
-error). A pixel p of an edge set assigned to limb i has the residual
+lateral offset l and slope l_s (both edges shifted the same way in the image) and
+width offset w and slope w_s (both moved the same way relative to the shaft: a
+depth or depth-tilt error). A pixel p of an edge set assigned to limb i has the residual
 
     R(p | theta_i(E), rho_i(E)) - c(p) . (w + sgn_i l, w_s + sgn_i l_s),   c(p) = (1, t(p) / T)
 
-where t(p) is p's coordinate along the set's principal direction from the
-set's centroid (px), the direction oriented along the frame's reference
-direction of the shaft (:func:`reference_direction`: robot.json's shaft axis
-direction projected through a fixed reference pose, the hand-eye prior E_0,
-so the same for both sets of a frame and from frame to frame),
-and T = ``SLOPE_SCALE`` = 100 px: an offset is the edge's offset at the set's
-centroid and a slope its change over 100 px of edge. R is the signed distance
-to limb i's line (A, B, C)(E) as
-:func:`graphtrack.geometry.cylinder.limb_line_coefficients` orients it: both
-limbs' normals point into the shaft's image, so they point opposite ways,
-the same lateral shift is +l on limb 0 and -l on limb 1 (sgn = +1, -1), and
-w > 0 means both edges moved inwards (a narrower image), w < 0 outwards.
-Lateral and width terms get their own spreads: the lateral ones are observed
-through the markers, the width ones compete with the depth, which the markers
-see only weakly.
+with t(p) (px) p's coordinate from the set's centroid along its principal direction,
+oriented along the frame's reference direction of the shaft (:func:`reference_direction`:
+robot.json's shaft axis projected through the fixed hand-eye prior E_0, the same for
+both sets and all frames), and T = ``SLOPE_SCALE`` = 100 px: an offset at the
+centroid, a slope per 100 px of edge. R is the signed distance to limb i's line
+(A, B, C)(E) as :func:`graphtrack.geometry.cylinder.limb_line_coefficients` orients
+it, both normals into the shaft's image: a lateral shift is +l on limb 0 and -l on
+limb 1 (sgn = +1, -1); w > 0 moves both edges inwards (a narrower image).
 
 Over time b is a first-order Gauss-Markov process with stationary standard
 deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
@@ -44,10 +28,10 @@ deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
     b_k = phi b_{k-1} + w_k,  phi = exp(-dt / tau),  w_k ~ N(0, (1 - phi^2) diag(sigma^2))
 
 (dt: seconds between the frames; the estimators may share one b among n
-consecutive frames, ``edge_bias_every``, and step the chain every n frames),
-i.e. the prior :func:`bias_prior_factor` and
-the transition :func:`bias_transition_factor`, a linear factor with residual
-(b_k - phi b_{k-1}) / (sigma sqrt(1 - phi^2)) and constant Jacobians.
+consecutive frames, ``edge_bias_every``, and step the chain every n frames):
+the prior :func:`bias_prior_factor` and the transition :func:`bias_transition_factor`,
+a linear factor with residual (b_k - phi b_{k-1}) / (sigma sqrt(1 - phi^2)) and
+constant Jacobians.
 """
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """Line-parameter factor: one detected shaft line (rho_d, theta_d) against E.
 
 For the polar observation models. With the projected limb line L(E) = (A, B, C)
-(:func:`graphtrack.geometry.cylinder.limb_line_coefficients`) written WITHOUT
-canonicalisation as (:func:`graphtrack.geometry.cylinder.line_polar`)
+(:func:`graphtrack.geometry.cylinder.limb_line_coefficients`), not canonicalised
+(:func:`graphtrack.geometry.cylinder.line_polar`),
 
     theta(E) = atan2(B, A),   rho(E) = -C / s,   s = |(A, B)|
 
@@ -10,47 +10,36 @@ the residual is the wrapped line difference (:func:`graphtrack.geometry.lines.li
 
     r = (d_rho, d_theta) = (rho(E), theta(E)) - (rho_d, theta_d),  d_theta in [-pi/2, pi/2)
 
-where the detected line is taken in whichever of its two representations
-(rho_d, theta_d) / (-rho_d, theta_d + pi) is nearer in angle (so the wrap
-never produces a 2 pi / sign jump), and the nearer projected limb (in the
-whitened metric) is used, re-chosen at every evaluation; with the frame's
-other detected line (a shared :class:`factors.limb.LimbPairing`) the two take
-different limbs, the pairing with the smaller total whitened cost. Analytic Jacobian:
+with the detected line in whichever representation, (rho_d, theta_d) or
+(-rho_d, theta_d + pi), is nearer in angle (no 2 pi / sign jump). The limb is the
+nearer one in the whitened metric, re-chosen at every evaluation; with the frame's
+other line (a shared :class:`factors.limb.LimbPairing`) the two take different limbs,
+the pairing of smaller total cost. Analytic Jacobian
+(:func:`graphtrack.geometry.cylinder.line_polar_jacobian`; a flip only changes r's
+constant part):
 
     d theta/dL = (-B, A, 0)/s^2,   d rho/dL = (C A/s^3, C B/s^3, -1/s)
-    (:func:`graphtrack.geometry.cylinder.line_polar_jacobian`)
 
-(the representation flip only changes the constant part of r). Whitening by
-(sigma_rho px, sigma_theta rad) and the robust kernel are a
-``gtsam.noiseModel.Robust`` (2 residuals: per-line robustness is exactly what
-GTSAM's robust model gives). Degenerate view: zero residual, zero Jacobian.
+Whitening by (sigma_rho px, sigma_theta rad) and the robust kernel: a
+``gtsam.noiseModel.Robust`` on the 2 residuals. Degenerate view: zero residual and Jacobian.
 
-With the detector's edge-bias vector b = (l, l_s, w, w_s) px (:mod:`factors.edge_bias`;
-the factor is then on (E, b)), limb i is compared after moving it the way the
-pixel models move their edge sets: by the offset o_i = w + sgn_i l (into the
-shaft's image) at x0, the foot of the principal point on the detected line,
-and turned by the slope k_i = (w_s + sgn_i l_s) / T per px along u, the
-detected line's direction oriented like the shaft's reference direction
-(T = ``SLOPE_SCALE``). With n = (A, B)/s and c = C/s the limb's signed-distance
-line, the biased line is
+Edge bias b = (l, l_s, w, w_s) px (:mod:`factors.edge_bias`; the factor is on (E, b)):
+limb i is moved as the pixel models move their sets, by the offset o_i = w + sgn_i l
+(into the shaft's image) at x0, the foot of the principal point on the detected line,
+and turned by the slope k_i = (w_s + sgn_i l_s) / T per px along u, the detected
+line's direction oriented like the shaft's reference direction (T = ``SLOPE_SCALE``).
+With n = (A, B)/s, c = C/s the limb's signed-distance line, the biased line is
 
-    L' = (n - k_i u, c - o_i + k_i u.x0)
+    L' = (n - k_i u, c - o_i + k_i u.x0)     (x on it: n.x + c = o_i + k_i u.(x - x0))
 
-(a pixel x is on it when n.x + c = o_i + k_i u.(x - x0)), and theta, rho are
-taken of L' as above. (The offset is anchored at x0, where a pixel set's is
-at its centroid, so the same b moves a line and a pixel set of one edge alike
-only near x0; each model family estimates its own b.) The frame's lines are
-paired with the limbs on E alone (unbiased costs), as the pixel sets are. b
-enters (rho, theta) nonlinearly through the slope (at a 1-sigma slope of 3 px /
-100 px the first-order prediction in b is off by ~0.3 px of rho against
-sigma_rho = 3 px), which the smoother's fixed linearisation point of b
-tolerates. Its Jacobians follow by the chain rule:
+and theta, rho are taken of L' as above. (Anchored at x0, not a set's centroid: each
+model family estimates its own b.) Lines are paired with limbs on E alone. b enters
+nonlinearly through the slope (a 1-sigma slope of 3 px / 100 px: ~0.3 px of rho off
+the first-order prediction, against sigma_rho = 3 px). Chain rule:
 dn/d(A, B) = (I - n n^T)/s, dc/d(A, B, C) = (-C A/s^3, -C B/s^3, 1/s),
-dL'/do_i = (0, 0, -1), dL'/dk_i = (-u, u.x0). A RANSAC line fitted near the
-shaft's end, where the end face's corner pulls it inwards, is off its limb
-by a few px and tenths of a degree for seconds at a time (benchmarks/RESULTS.md);
-counted as independent per frame, that error is averaged over the recording as
-if it were information (see FactorOptions in :mod:`graphtrack.estimate.graph`).
+dL'/do_i = (0, 0, -1), dL'/dk_i = (-u, u.x0).
+
+Why the lines are on the bias state: docs/decisions/edge-bias-state.md.
 """
 from __future__ import annotations
 

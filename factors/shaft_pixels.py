@@ -1,57 +1,39 @@
 """Point-to-projected-line factor: one shaft edge's pixel set against E.
 
-For the edge's pixels p_j = (x_j, y_j), j = 1..m (undistorted px), and the
-projected limb line (theta(E), rho(E)) of the shaft axis (fixed base-frame
-data of the frame's readings) the residual vector is
+Pixels p_j = (x_j, y_j), j = 1..m (undistorted px), against the projected limb line
+(A, B, C) = L(E) of the shaft axis (fixed base-frame data of the frame's readings):
 
-    z_j = R(p_j | theta(E), rho(E)) / sigma
-        = (cos theta x_j + sin theta y_j - rho) / sigma
-        = (A x_j + B y_j + C) / (|(A, B)| sigma),     (A, B, C) = L(E)
+    z_j = (cos theta x_j + sin theta y_j - rho) / sigma
+        = (A x_j + B y_j + C) / (s sigma),     s = |(A, B)|
 
-(the method's pixel residual, signed distance in px), robustified per pixel
-(:mod:`factors.robust`). ONE factor per edge carries all its pixels
-(vectorised), so GTSAM makes one Python callback per edge and frame.
-
-Analytic Jacobian (right perturbation xi = (omega, v)): with h_j = (x_j, y_j, 1),
-s = |(A, B)| and dL/dxi from :func:`graphtrack.geometry.cylinder.limb_line_coefficients`,
+(signed distance in px), robustified per pixel (:mod:`factors.robust`); one factor,
+one Python callback, per edge and frame. Analytic Jacobian (right perturbation
+xi = (omega, v)), h_j = (x_j, y_j, 1), dL/dxi from
+:func:`graphtrack.geometry.cylinder.limb_line_coefficients`:
 
     dz_j/dxi = (h_j - z_j sigma (A, B, 0)/s) / (s sigma) . dL/dxi
 
-(:func:`graphtrack.geometry.cylinder.pixel_residuals` and
-:func:`graphtrack.geometry.cylinder.pixel_residual_jacobian`, divided by sigma).
+(:func:`graphtrack.geometry.cylinder.pixel_residual_jacobian`). Limb assignment,
+re-decided at every evaluation: alone, the limb of smaller robust cost; with the
+frame's other edge (a shared :class:`LimbPairing`), the two take DIFFERENT limbs,
+the pairing of smaller total cost (the cost is the minimum over assignments,
+continuous in E). A degenerate view (``valid`` False): zero residual and Jacobian.
 
-Edge assignment: at every evaluation (so at each relinearisation) each edge's
-pixel set is re-assigned to a projected limb by robust cost: alone, to the
-limb with the smaller cost (the nearer projected edge); with the frame's other
-edge (a shared :class:`LimbPairing`), the two sets take DIFFERENT limbs, the
-pairing with the smaller total cost. Without that constraint, a hand-eye error
-of more than half the shaft's image width puts both detected edges nearer the
-same projected limb, and the optimum is then a shaft so far away that its
-limbs merge: on synthetic runs with hand-eye errors drawn from the prior
-(5 mm / 2 deg per axis) 12 of 40 diverged (tens to hundreds of mm), against
-none with the pairing. The cost is the minimum over the assignments,
-continuous in E.
-A degenerate view (``valid`` False) gives a zero residual and zero Jacobian:
-the factor then says nothing and the graph stays solvable.
-
-Edge bias (``bias=True``, :mod:`factors.edge_bias`): the factor also has the
-frame's bias vector b = (l, l_s, w, w_s) as a second key, and a pixel
-assigned to limb i has the residual
+Edge bias (``bias=True``, :mod:`factors.edge_bias`): second key b = (l, l_s, w, w_s)
+px; a pixel assigned to limb i has
 
     z_j = (R(p_j | theta_i(E), rho_i(E)) - c_j . (w + sgn_i l, w_s + sgn_i l_s)) / sigma,
     c_j = (1, t_j / T)       (t_j along the set, :func:`factors.edge_bias.bias_coefficients`)
 
-with dz_j/db = -c_j . G_i / sigma, G_i = d(offset, slope)/db
-(:func:`factors.edge_bias.limb_bias_jacobian`). The limb assignment is
-decided on E alone (a bias of a pixel or two does not change which limb is
-nearer).
+and dz_j/db = -c_j . G_i / sigma, G_i = d(offset, slope)/db
+(:func:`factors.edge_bias.limb_bias_jacobian`); the limb is assigned on E alone.
 
-Tempering (``weight`` w in (0, 1]): the factor's cost is w sum_j rho(z_j),
-i.e. e_j = sqrt(w) g(z_j) (the per-pixel robust kernel still decides on the
-pixel's own sigma). With w = n / m for an m-pixel set the set counts as n
-independent pixels, as the particle filter's ``pixel_effective_count``: a
-detector errs by the whole edge (offset, angle), not pixel by pixel, so its
-pixels' errors are not independent (see FactorOptions).
+Tempering (``weight`` w in (0, 1]): cost w sum_j rho(z_j), i.e. e_j = sqrt(w) g(z_j),
+the robust kernel still judging each pixel on sigma; w = n / m makes an m-pixel set
+count as n independent pixels.
+
+Decisions: docs/decisions/smoother-start-up.md (limb pairing),
+pixel-effective-count.md, edge-bias-state.md.
 """
 from __future__ import annotations
 

@@ -20,13 +20,9 @@ provisional estimates, and returns the refined Estimates with the marginal
 covariance of each E_t in the left (b, w) perturbation (``covariance=True``;
 computed with one sparse block-tridiagonal pass over blocks of frames, O(n)).
 
-Defaults (measured on 600 synthetic frames, one core): initialised from E_0
-with a relative tolerance of 1e-6, LM took 8 iterations; initialised from the
-online smoother (``provisional="smoother"``) with a relative tolerance of 1e-3
-it takes 2 iterations, ending at the same cost to 1.5e-6 relative and the
-same error (0.11 mm / 0.05 deg). Each LM iteration re-linearises every
-frame's Python factors, so starting near the optimum is what keeps a
-1800-frame refinement at ~7 s (benchmarks/RESULTS.md).
+Defaults (start from the online smoother, relative tolerance 1e-3; each LM
+iteration relinearises every frame's Python factors) and their measurements:
+docs/decisions/python-lm-for-batch.md.
 """
 from __future__ import annotations
 

@@ -14,20 +14,13 @@ association takes), with sigma (px) the detections' own noise, and clipped to
 [configured gate, ``ceil``]: it widens with the estimate's uncertainty (a long
 gap, a re-initialisation, a wide particle cloud) and returns to the configured
 gate as the estimate becomes confident. It does not shrink below it: the
-estimators' covariances are over-confident exactly when the lock is wrong (a
-start-up LM on the shaft alone leaves E 12 mm off with a tight marginal), and
-markers 100+ px off are what pulls them back (docs/decisions/marker-gate.md;
-a 20 px floor left the smoother 16 mm off on a 16 mm start, the PF 0.6 mm
-instead of 0.2 mm after a hidden stretch). Without a usable covariance (None,
-non-finite) the configured gate is kept.
+estimators' covariances are over-confident exactly when the lock is wrong.
+Without a usable covariance (None, non-finite) the configured gate is kept.
 
 Off by default in both estimators (``marker_gate_follows_covariance``): widening
-is harmful too. After the smoother's shaft-only start-up its marginal spans
-150 px of marker motion, the Hungarian association in that gate pairs markers
-100+ px off wrongly, and a 16 mm start ended 18.8 mm off instead of 1.05 mm
-(tests/test_smoother_synthetic.py, seed 86); the fixed, tuned gate excludes
-them until the shaft has converged. In the particle filter the gate is the cap
-of the robust marker cost, part of its tuned likelihood.
+after the smoother's shaft-only start-up pairs markers 100+ px off wrongly; in the
+particle filter the gate is the cap of the robust marker cost, part of its tuned
+likelihood. Measurements: docs/decisions/startup-search.md, marker-gate.md.
 """
 from __future__ import annotations
 

@@ -80,111 +80,31 @@ def gaussian_bw(E: np.ndarray, sigma_b: float, sigma_w: float):
 class FactorOptions:
     """Measurement models of one frame's detections.
 
-    pixel_sigma: px across the line of the shaft pixels; line_sigma_rho (px) /
-    line_sigma_theta (rad): detected (rho, theta); marker_sigma: px;
-    marker_gate: px (association gate); robust: "cauchy" | "huber" | "none"
-    with width robust_k (whitened units, default 2.0 Cauchy / 1.345 Huber);
-    markers: use marker detections; max_pixels: subsample each edge's pixel
-    set to at most this many (deterministic stride; 0 = all).
+    pixel_sigma: px across the line, per shaft pixel.
+    line_sigma_rho (px) / line_sigma_theta (rad): a detected polar line (rho, theta).
+    marker_sigma: px per marker detection.
+    marker_gate: association gate in detection-image px; the gate used is
+    marker_gate * gate_scale (60, not the paper's 20: start-up hand-eye errors).
+    gate_scale: full-size px per detection-image px (the pipeline passes 1 / its
+    detection scale, 2 at 1080x1920 detected at half size).
+    marker_discs: a marker with a ``radius`` is a painted disc, predicted by its
+    image centroid (:mod:`graphtrack.geometry.painted_marker`); False: points.
+    robust: "cauchy" | "huber" | "none"; robust_k its width in whitened units
+    (None: 2.0 Cauchy / 1.345 Huber).
+    markers: use marker detections.
+    max_pixels: at most this many pixels per edge set (deterministic stride; 0 = all).
+    pixel_effective_count n: an m > n pixel set's cost is weighted n / m, so it
+    counts as n independent pixels (0: every pixel counts; the robust kernel still
+    judges each pixel on pixel_sigma).
+    edge_bias: carry the detector's edge-bias vector b = (lateral, lateral slope,
+    width, width slope) px (:mod:`factors.edge_bias`), a Gauss-Markov process with
+    stationary stds edge_bias_sigma_lateral / _lateral_slope / _width /
+    _width_slope (px) and time constant edge_bias_tau (s), one vector per
+    edge_bias_every frames. Pixel sets are on it; so are the polar models' lines
+    (the smoother's only once settled, ``line_bias`` of :func:`frame_factor_groups`).
 
-    gate_scale: full-size pixels per detection-image pixel; the gate used is
-    marker_gate * gate_scale. The tracking pipeline passes 1 / its detection
-    scale (2 at 1080x1920, detected at half size): the gate guards against the
-    start-up pose error, whose image shift grows with the focal length, and
-    was tuned on 540x960 recordings (f = 1000 px). With a 60 px gate at
-    1080x1920 (f = 2000 px) the markers of a benchmark recording stayed out of
-    the graph and the smoother slid along the shaft (tip 56-83 px, no better
-    than the kinematics; with the gate scaled: 15-23 px, 7-12 px at half size
-    as at 540x960).
-
-    marker_gate is 60 px, not the paper's 20: real (and simulated) hand-eye
-    errors put the markers 20-45 px from their prediction at start-up, and
-    with a 20 px gate they never entered the graph, leaving the two shaft lines
-    alone to fix E (they do not observe the slide along the shaft). Measured
-    on four 200-frame tuning recordings (learned detector, mean tip error):
-    gate 20: 2.9 / 43.3 / 2.3 / 2.4 px; gate 40: 2.1 / 43.5 / 2.3 / 2.3 px;
-    gate 60: 2.1 / 5.1 / 2.3 / 2.4 px. The Huber kernel bounds the pull of a
-    wrong association inside the wider gate.
-
-    pixel_effective_count n (default 10; 0: every pixel counts): an edge set of
-    m > n pixels has its cost weighted by n / m, so it counts as n independent
-    pixels (the particle filter's tempering; the robust kernel still judges
-    each pixel on pixel_sigma). A detector errs by the whole edge: on the
-    learned detector's line-intensities sets of four tuning recordings the
-    fitted lines are off the true limbs by ~0.35 px and ~0.1 deg RMS, mostly
-    the same from frame to frame, while 500 pixels counted as independent
-    claim ~0.05 px and ~0.005 deg. The smoother then locked the shaft's depth
-    tilt (seen only through the limbs' slight convergence) onto that bias.
-    Measured on eight 200-frame tuning recordings (4 structured, 4 tissue;
-    line-intensities and endpoint-intensities, mean tip error of the 16
-    runs): n = 0: 3.58 px; 30: 3.26; 20: 2.94; 10: 2.97; the particle filter
-    5.80. With n = 20 the smoother is below the particle filter on all 16
-    (with n = 0 it lost 2), and its mean NEES on four of them (line-intensities)
-    drops from 178-689 to 36-65 (still overconfident: the line errors are
-    shared across frames too). On synthetic data with independent pixels the matched
-    model is n = 0 (the Monte-Carlo NEES check uses it); n = 10 is then
-    conservative. Inflating sigma instead (sigma sqrt(m / n)) also widened the
-    robust kernel to ~10 px and let 20 % outlier pixels pull the estimate.
-    n = 20 was the default until the edge-bias state and the painted-disc
-    markers; measured again with them (same 16 runs, mean tip error): smoother
-    n = 20: 1.21 px, 10: 1.13; batch 20: 0.99, 14: 0.96, 10: 0.93, 7: 0.92,
-    5: 0.91; with the Canny detector's pixel sets (16 runs) smoother 2.20 ->
-    1.63 px and batch 1.96 -> 1.50 px from 20 to 10.
-
-    edge_bias: the frames carry the detector's edge-bias
-    vector b = (lateral offset, lateral slope, width offset, width slope) px
-    (:mod:`factors.edge_bias`), a Gauss-Markov process with stationary spreads
-    edge_bias_sigma_lateral / _lateral_slope / _width / _width_slope (px) and
-    time constant edge_bias_tau (s), one vector per edge_bias_every frames
-    (piecewise constant; the chain steps every n frames). The tempering above
-    caps what one frame's edge says; the bias state stops the frames' shared
-    error from adding up over time. Measured on the eight tuning recordings
-    (learned detector, pixel models, mean tip error, smoother / batch; a bias
-    vector per frame unless said): no state 2.84 / 2.85 px; spreads 0.3, 0.3,
-    3, 3 px, tau 2 s (the defaults) 2.44 / 2.59, one vector per 5 frames (the
-    default) 2.56 / 2.66, per 10 frames 2.59 (smoother); independent per-limb
-    offsets and slopes of 1 px 2.77 / 2.79; lateral 1 px and width 0.3 px
-    3.51 / 3.40 (a loose lateral term lets the shaft slide along its image,
-    which two markers hold poorly); width spreads 2 px 2.49 / 2.62, 5 px
-    2.42 / 2.55; the time constant matters little (spreads 0.3, 0.3, 2, 2 px:
-    tau 0.5 s 2.43 / 2.58; spreads 0.3, 0.3, 1, 1 px: tau 2 s 2.60 / 2.69,
-    10 s 2.63 / 2.77). With the Canny detector's pixel sets: no state 10.16 /
-    10.07 px, the defaults (per frame) 3.72 / 3.72. A vector per frame doubled
-    the smoother's update (1 s lag, synthetic, interleaved runs: 3.3 against
-    1.7 ms without the state); one per 5 frames: 2.2 against 1.4 ms. The
-    state costs the start-up from large errors: from hand-eye errors drawn
-    from the prior (synthetic) 90 of 100 runs are within 3 mm at frame 40,
-    against 99 without it (the depth is then held by the markers, which wait
-    for the gate); with the painted-disc markers, 86 against 100.
-
-    The polar models' detected lines are on the same state
-    (:mod:`factors.line_parameter`: the limb moved by the bias before (rho,
-    theta) are compared), with the same spreads. A RANSAC line fitted near the
-    shaft's end, where the end face's corner pulls it in, stays a few px and
-    tenths of a degree off its limb for seconds (a benchmark recording: one
-    limb 4.0 +- 1.3 px and 0.37 deg off over 300 frames); the batch then locked
-    onto it and lost to the smoother on those models. Measured on the eight
-    tuning recordings (learned detector; endpoint- and line-intensities-polar,
-    16 runs, mean tip error): smoother 2.01 -> 1.91 px, batch 1.37 -> 0.93 px
-    (at or below the smoother in 15 of 16 runs); with the Canny detector's
-    lines (8 runs): smoother 2.37 -> 2.13 px, batch 2.45 -> 0.84 px (8 of 8).
-    The smoother puts its lines on the state only from its settle time on
-    (``line_bias`` of :func:`frame_factor_groups`): from the first frame the
-    state took up a tuning recording's 40 px start-up error and the smoother
-    stayed 20-50 px off (36 px mean; 7.1 px without the state, 6.4 px with it
-    from 2 s on).
-
-    marker_discs: a point feature with a ``radius`` in robot.json (a painted
-    disc on the shaft) is predicted by the centroid of its image, not the
-    projection of its centre (:mod:`graphtrack.geometry.painted_marker`;
-    False: every marker a point, as in the particle filter). On the eight
-    tuning recordings the learned detector's centroids were 0.6-2.5 px RMS from
-    the projected centres and 0.2-0.4 px from the modelled centroids, with
-    offsets that persist for seconds (the disc turns slowly); the markers are
-    what holds the slide along the shaft. Mean tip error over 24 runs
-    (line-intensities, endpoint-intensities, line-intensities-polar),
-    smoother / batch: points 2.48 / 2.60 px, discs 1.27 / 0.95 px; the batch
-    was at or below the smoother in 19 of the 24 runs with discs, 10 with points.
+    Why these defaults, with measurements: docs/decisions/pixel-effective-count.md,
+    edge-bias-state.md, marker-gate.md, painted-disc-markers.md.
     """
 
     pixel_sigma: float = 1.5

@@ -1,87 +1,30 @@
 """Observation log-likelihoods log P(z_t | E) for all particles at once.
 
-Every function returns an (N,) array of log-likelihoods, up to an additive
-constant shared by all particles (the filter subtracts the maximum before
-exponentiating). Inputs per particle n are the projected shaft limb lines
-(rho_{n,j}, theta_{n,j}), j = 1, 2 (px, rad; :func:`graphtrack.robot.features.shaft_lines`),
-their ``valid`` flag, and the projected markers (px). Detected quantities come
-from :class:`graphtrack.detect.base.Observation` in undistorted pixels.
+Each function returns an (N,) array, up to a constant shared by all particles.
+Inputs per particle n: the projected limb lines (rho_nj, theta_nj), j = 1, 2 (px,
+rad; :func:`graphtrack.robot.features.shaft_lines`), their ``valid`` flag and the
+projected markers (px); detections are undistorted px (:class:`graphtrack.detect.base.Observation`).
 
-Polar models (``canny``, ``endpoints-polar``, ``endpoint-intensities-polar``,
-``line-intensities-polar``)::
+Polar models (``canny``, ``*-polar``), gamma_rho 1/px, gamma_theta 1/rad:
 
     log P = max_pi log sum_i exp(-gamma_rho |rho_i^det - rho_pi(i)(E)| - gamma_theta |theta_i^det - theta_pi(i)(E)|)
 
-with pi an injective pairing of detected lines i to projected edges
-(both pairings of two lines are tried per particle and the better one kept,
-or the one given by ``edge_ids`` if asked to), and the differences taken by
-:func:`graphtrack.geometry.lines.line_difference` (theta wrapped to
-[-pi/2, pi/2), rho compared in the matching representation).
-gamma_rho in 1/px, gamma_theta in 1/rad.
+pi an injective pairing of detected lines to limbs (both tried, or ``edge_ids``),
+differences by :func:`graphtrack.geometry.lines.line_difference`.
+Pixel models (``endpoint-intensities``, ``line-intensities``): pixel p = (x, y) has
+R = cos(theta) x + sin(theta) y - rho (px) against the NEARER limb, R ~ N(0, sigma^2),
 
-Pixel models (``endpoint-intensities``, ``line-intensities``): each pixel
-p = (x, y) of the sets E_e / E_l has the residual
-R(p | theta, rho) = cos(theta) x + sin(theta) y - rho (px) against the NEARER
-of the two projected edges, R ~ N(0, sigma^2), and
+    log P = lambda sum_p w_p max(-R_p^2 / (2 sigma^2), -c^2 / 2),   w_p = min(1, n / m)
 
-    log P = lambda * sum_p max(-R_p^2 / (2 sigma^2), -c^2 / 2)
+(the floor: a Gaussian + uniform outlier max-mixture; lambda = ``pixel_weight``;
+n = ``pixel_effective_count`` per m-pixel edge set, 0: w_p = 1).
+Markers: log P = -sum_k cost(min(d_k, gate)), d_k (px) to the associated projected
+marker; cost "laplace" gamma d, "huber" u^2/2 up to u = k then k u - k^2/2 (u = d/s),
+"cauchy" log(1 + u^2); the best injective assignment per particle (all enumerated),
+markers facing away count as unmatched (cost gate).
+Degenerate projections (valid False) get ``INVALID_LOGLIK``.
 
-The floor at c sigma is the max-mixture form of a Gaussian + uniform outlier
-mixture (a stray pixel costs at most c^2/2 nats, so it cannot annihilate a
-particle). lambda (``pixel_weight``) tempers the sum for the correlation of
-neighbouring pixels (lambda = 1: the plain sum of independent pixels).
-
-Markers: log P = -gamma sum_k min(d_k, gate), d_k (px) the distance of
-detected marker k to the projected marker it is associated with; association
-is the best injective assignment PER PARTICLE (all assignments enumerated,
-vectorised; exact for the few markers of a tool), projected markers facing
-away from the camera count as unmatched (cost gate).
-
-Degenerate projections (valid False) get ``INVALID_LOGLIK``, a very low but
-finite value.
-
-Defaults: gamma_rho = 0.5 /px and gamma_theta = 50 /rad make one nat of
-evidence ~2 px of rho or ~1.1 deg of theta, the scale of a detected edge's
-error; at ~12 cm a 1 mm / 1 deg pose error then costs 0.5-14 nats. sigma = 2 px
-with the floor at 3 sigma (a stray pixel costs at most 4.5 nats). The plain
-sum (pixel_weight 1) is kept: tempering to 0.1 changed the synthetic
-convergence by < 0.1 mm once the filter roughens (particle_filter.py).
-
-Changed defaults (measured, see below): ``pixel_effective_count`` n = 30
-(paper: every pixel counts once) and ``marker_gate`` = 50 px (paper: 20).
-``pixel_effective_count`` n (per edge: the pixels of an m-pixel edge set each
-count min(1, n / m), since pixels along one edge are strongly correlated and
-jointly carry about a line fit's worth of evidence) and ``marker_loss``
-("laplace" = the paper's gamma d; "huber" with ``marker_sigma`` s and
-``marker_huber_k`` k: (d/s)^2/2 up to k s, then linear with slope k/s;
-"cauchy": log(1 + (d/s)^2)), all gated at ``marker_gate``.
-
-Measured on 200-frame simulated recordings (seeds 21, 22 structured; 23, 24
-tissue; line-intensities + markers, 1000 particles; mean tip error px over
-the 4 recordings; kinematics 45.3 / 39.5 / 39.1 / 16.4 px):
-
-    config                                          learned   canny
-    paper defaults (plain sum, laplace 0.15/20 px)  5.93      7.35
-    pixel_weight 0.05, gate 50                      3.84      8.63
-    n_eff 10, huber s 2 k 2 gate 50, roughening 0.3 3.97-4.23 3.75-4.24 (2 seeds)
-
-Chosen defaults (lead's sweep, same recordings, learned detector, filter seeds
-0 and 1, mean / worst of the 8 runs): paper 11.95 / 50.6 px; n 20 + gate 50
-4.04 / 5.7; n 30 + gate 50 4.20 / 5.5 (default); n 50 + gate 50 9.99 / 50.2;
-the tuned huber set 4.10 / 9.7. n = 30 also keeps the synthetic convergence
-tests within 0.5 mm (n = 20 ends line-intensities at 0.76 mm). A 20 px gate
-fails because real hand-eye errors put markers 20-45 px from their prediction
-at start-up: they then never pull, and the estimate slides along the shaft,
-which the two lines alone do not observe. Kept from the paper: the laplace
-marker loss (gamma 0.15 /px) and roughening 0.5.
-
-The huber set is not the default: with it the synthetic convergence tests
-(tests/test_pf_filter.py: exact markers and noise-free pixels, 3 mm / 2 deg)
-end at 4.4 mm (canny) / 2.5 mm (line-intensities) instead of < 0.5 mm; the
-huber marker loss and roughening 0.3 are what break them (laplace gate 20 +
-roughening 0.5 + n_eff 10-20 pass canny, line-intensities ends at 0.56-0.59
-mm). Pass the tuned set through EstimatorOptions.tuned until that conflict is
-resolved.
+Defaults and their measurements: docs/decisions/pixel-effective-count.md, marker-gate.md.
 """
 from __future__ import annotations
 
@@ -101,9 +44,9 @@ INVALID_LOGLIK = -1.0e6
 #: Defaults (units in the names): polar Laplace rates, pixel sigma, marker model.
 GAMMA_RHO = 0.5        # 1/px: 2 px of rho error costs 1 nat
 GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
-PIXEL_EFFECTIVE_COUNT = 30.0  # per edge (0: every pixel counts once); see the module docstring
+PIXEL_EFFECTIVE_COUNT = 30.0  # per edge (0: every pixel counts once); docs/decisions/pixel-effective-count.md
 MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
-MARKER_GATE = 50.0     # px (paper: 20); see the module docstring
+MARKER_GATE = 50.0     # px (paper: 20); docs/decisions/marker-gate.md
 MARKER_LOSS = "laplace"
 MARKER_SIGMA = 2.0     # px (huber / cauchy losses)
 MARKER_HUBER_K = 2.0   # Huber threshold in units of MARKER_SIGMA

@@ -1,59 +1,26 @@
 """The method's particle filter over the lumped error E_t (camera-from-base).
 
-State. Each particle is x = (b, w) in R^6, b in metres, w an axis-angle
-rotation in radians, and stands for
+State: x = (b, w) in R^6 (b m, w axis-angle rad), a LEFT camera-frame correction
+of the hand-eye prior E_0 = ctx.handeye: E(x) = [R(w) b; 0 1] . E_0 (se3.bw_to_matrix).
+A feature X on link j is seen at E(x) . T_1(q~_1) ... T_j(q~_j) . X, the joint
+readings' errors lumped into E_t.
 
-    E(x) = E(b, w) . E_0,          E(b, w) = [R(w) b; 0 1]   (se3.bw_to_matrix)
+Motion: x_t = x_{t-1} + v_t, v_t ~ N(0, diag(s_b^2 I_3, s_w^2 I_3)), s_b =
+``motion_std_b`` (m/frame), s_w = ``motion_std_w`` (rad/frame). Prior: x_0 ~
+N(0, diag(i_b^2 I_3, i_w^2 I_3)) (``init_std_b`` m, ``init_std_w`` rad).
+Update: log w_n += log P(z_t | E(x_n)) (:mod:`graphtrack.estimate.observation_models`,
+all particles projected at once by :mod:`graphtrack.estimate.pf.projection`), in log
+space; a frame without shaft or markers leaves the weights alone. When ESS =
+1 / sum w_n^2 < ``resample_threshold`` * N: systematic resampling, then roughening
+x_n += N(0, ``roughening``^2 Sigma), Sigma the weighted covariance before resampling,
+the jitter's std capped per axis at the prior spread.
+Estimate: b = sum w_n b_n, R the chordal L2 mean of R(w_n), E_t = [R b; 0 1] . E_0;
+``Estimate.std``/``cov``: the weighted covariance of x. With ``search`` the cloud is
+started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`).
 
-i.e. a correction applied on the LEFT, in the camera frame, to the hand-eye
-prior E_0 = ctx.handeye. x = 0 is the prior itself. A feature X on link j
-is seen at camera_X = E(x) . T_1(q~_1) ... T_j(q~_j) . X with the noisy joint
-readings q~; joint errors are absorbed ("lumped") into E_t.
-
-Motion model: x_t = x_{t-1} + v_t, v_t ~ N(0, diag(s_b^2 I_3, s_w^2 I_3)),
-s_b = ``motion_std_b`` (m/frame), s_w = ``motion_std_w`` (rad/frame).
-Prior: x_0 ~ N(0, diag(i_b^2 I_3, i_w^2 I_3)) (``init_std_b``, ``init_std_w``).
-
-Every particle is projected at once (:mod:`graphtrack.estimate.pf.projection`:
-one GEMM maps the frame's features, then Chaumette's limb lines and the
-pinhole, in a component-major layout).
-
-Update: log w_n += log P(z_t | E(x_n)) (shaft model of Observation.model
-+ markers, :mod:`graphtrack.estimate.observation_models`), in log space with
-max-subtraction. A frame without shaft or markers leaves the weights alone.
-When ESS = 1 / sum w_n^2 < ``resample_threshold`` * N: systematic
-resampling (:mod:`graphtrack.estimate.resampling`) followed by roughening,
-x_n += N(0, (``roughening``)^2 Sigma), Sigma the weighted particle covariance
-before resampling: it keeps the cloud diverse in the directions the data have
-not yet pinned down and shrinks with it as the filter converges.
-
-Estimate: b = sum w_n b_n; R = chordal L2 mean of R(w_n) (se3.average_rotations);
-E_t = [R b; 0 1] . E_0. ``Estimate.std``/``cov``: weighted covariance of x.
-
-Defaults. The dVRK tracker's motion model (2.5e-5 m, 1e-4 rad per frame)
-is kept; its initial spread (1e-3 m, 1e-2 rad) and its lack of roughening are
-not. Measured on a synthetic PSM scene (f = 1000 px; hand-eye error 3 mm / 2 deg
-in a random direction, noisy lines/pixels/markers, the true E drifting by a
-random walk of the motion model's size, 200 frames, 3 seeds; error of
-E_est E_true^-1, mean over the last 50 frames):
-
-    line-intensities-polar           err@50 frames      last 50 frames
-    dVRK (1 mm/0.57 deg, no rough.)  2.49 mm 1.15 deg   2.16 mm 1.04 deg
-    wide prior only                  4.37 mm 1.80 deg   4.02 mm 1.69 deg
-    dVRK prior + roughening 0.5      1.20 mm 0.51 deg   0.56 mm 0.25 deg
-    chosen: wide + roughening 0.5    0.79 mm 0.44 deg   0.47 mm 0.22 deg
-    (line-intensities: 2.01 mm / 1.17 deg -> 0.55 mm / 0.30 deg)
-
-Without roughening the cloud collapses onto the best initial particles within
-a few frames (the pixel model's likelihood is sharp: ESS ~ 1 on frame 0) and
-then crawls at the 2.5e-5 m/frame random walk. Roughening (0.5 x the weighted
-particle covariance after each resampling, capped per axis at the prior
-spread) keeps the cloud as wide as the data allow along the weakly observed
-directions (a rotation about the camera centre traded against a
-translation), so it slides to the truth. The wider prior (4e-3 m, 3e-2 rad =
-1.7 deg) matters for larger errors: at 5 mm / 3 deg the dVRK prior +
-roughening leaves 2.47 mm (one seed of 4 at 8.2 mm) after 200 frames, the
-chosen defaults 0.57 mm / 0.26 deg (worst seed 0.64 mm).
+Defaults (the dVRK tracker's motion model, a wider initial spread, roughening 0.5)
+and their measurements: docs/decisions/pf-initial-spread-and-roughening.md,
+startup-search.md.
 """
 from __future__ import annotations
 

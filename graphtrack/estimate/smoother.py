@@ -1,82 +1,30 @@
 """Online fixed-lag factor-graph estimator of the lumped error E_t.
 
-One gtsam.Pose3 E_t per frame (key x_t; y_t once settled, see below). Factors:
+One gtsam.Pose3 E_t per frame (key x_t; y_t once settled). Factors:
 
-- frame 0: PriorFactorPose3(E_0 = ctx.handeye) with left (b, w) stds
-  (prior_sigma_b m, prior_sigma_w rad);
-- every frame t > 0, ALWAYS (so a frame without detections, a long occlusion
-  or a degenerate view keeps the graph solvable): BetweenFactorPose3(x_{t-1},
-  x_t, identity) with left per-frame stds (motion_sigma_b, motion_sigma_w),
-  the particle filter's Gaussian random walk;
-- the frame's detections (:func:`graphtrack.estimate.graph.frame_factors`):
-  shaft pixels / lines and markers, robust; in stereo also the right image's
-  (:mod:`graphtrack.estimate.stereo`), on the same x_t;
-- pixel models: the edge-bias vector b_j shared by frames jn .. jn + n - 1
-  (n = ``edge_bias_every``, key b_j), its prior at frame 0 and the
-  Gauss-Markov transition from b_{j-1} (:mod:`factors.edge_bias`); the
-  shaft-pixel factors are on (x_t, b_j). The block's variables (b_j and
-  x_jn .. x_jn+n-1) share one timestamp, that of its first frame, so they
-  leave the window together, every n frames, and the window holds between
-  ``lag`` and ``lag`` + (n - 1) frames. Marginalising one x per frame while
-  b_j, tied to all of them, stayed (its timestamp refreshed to its newest
-  frame) made every iSAM2 update re-eliminate a part of the Bayes tree that
-  grew by one variable per frame, until it passed iSAM2's batch threshold and
-  the whole window, Python pixel factors included, was relinearised: a 30 ms
-  update every 20 frames (540x960 canny recording: mean estimate stage
-  6.1 -> 4.2 ms with the shared timestamp). Stamping b_j alone with its first
-  frame was worse still (a 30 ms update every 2-3 frames).
+- frame 0: PriorFactorPose3(E_0 = ctx.handeye), left (b, w) stds (prior_sigma_b m,
+  prior_sigma_w rad);
+- every frame t > 0, always (so gaps and degenerate views stay solvable):
+  BetweenFactorPose3(x_{t-1}, x_t, identity), left stds (motion_sigma_b m,
+  motion_sigma_w rad) per frame, the particle filter's random walk;
+- the frame's robust detection factors (:func:`graphtrack.estimate.graph.frame_factors`;
+  in stereo also the right image's, :mod:`graphtrack.estimate.stereo`);
+- edge-bias vector b_j per frames jn .. jn + n - 1 (n = ``edge_bias_every``), its
+  prior and Gauss-Markov chain (:mod:`factors.edge_bias`); shaft pixels on (x_t, b_j),
+  polar lines on it only once settled. A block's variables share its first frame's
+  timestamp, so the window holds ``lag`` to ``lag`` + (n - 1) frames.
 
-Start-up: the first frame with detections gets its initial value from
-Levenberg-Marquardt on that frame alone (its factors + the prior at the
-current estimate), in two stages: the shaft factors first, then with the
-markers, whose association is only trustworthy once the shaft lines agree.
-Until then marker detections are held back (up to ``start_up_wait`` frames
-without shaft detections): two markers associated at a prior 40-50 px off
-can take the wrong pair (a tuning recording started on such a frame and
-stayed 200 px off).
-iSAM2's undamped Gauss-Newton steps from a hand-eye error of several mm and
-degrees overshoot (every pixel in the robust kernel's tail) into a wrong
-marker association and run away. On synthetic runs with hand-eye errors drawn
-from the prior (5 mm / 2 deg per axis; 100 runs, frame 40) this took the
-failures (> 3 mm) from 10 to 0, with the limb pairing of
-:mod:`factors.shaft_pixels` (without the pairing: 13).
+Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
+(shaft factors, then with markers; markers-only frames held back up to
+``start_up_wait``), or initialised by the global search (:mod:`graphtrack.estimate.reinit`).
+iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
+t: x_t right after frame t's update (filtered); cov/std: its marginal in the left
+(b, w) perturbation. iSAM2 relinearises at ``relinearize_threshold`` (rad / m of
+gtsam's right perturbation) and, from ``settle`` s after start-up, settled keys y_t
+at ``settled_relinearize_threshold``.
 
-gtsam.IncrementalFixedLagSmoother (iSAM2, default) or BatchFixedLagSmoother
-keeps the last ``lag`` seconds; older states are marginalised. The Estimate of
-frame t is the estimate of x_t right after frame t's update (filtered: no
-look-back), and its uncertainty the marginal covariance of x_t converted to
-the left camera-frame perturbation E = Exp(xi_L) . Ê, (b, w) order, reported
-as Estimate.cov / std and the columns std_bx..std_wz.
-
-Defaults (see the report in benchmarks/bench_smoother.py and the tests):
-prior 5 mm / 0.035 rad (2 deg) per axis - the hand-eye errors seen in
-practice are several mm and 1-3 deg, and the particle filter's 1 mm / 0.01 rad
-spread would make the first frames over-confident (NEES far above the
-chi-square band) and slow to move; motion 2.5e-5 m / 1e-4 rad per frame
-(the particle filter's random walk).
-
-Speed defaults (measured, one core, 540x960 canny recording, 150 frames):
-relinearize_threshold 1e-2 and one extra iSAM2 pass per frame run at 67
-frames/s end to end against 53 with 1e-3 and two passes (the slow frames were
-the relinearisations), with the same tip error (11.9 vs 11.8 px there, and
-unchanged on four tuning recordings).
-
-Polar models with the edge-bias state: a frame's detected lines are on the
-bias vector only once settled (below); before, they are on E_t alone (see
-FactorOptions: from the first frame the state took up a tuning recording's
-start-up error and the smoother never recovered).
-
-Settled relinearisation. Once ``settle`` seconds (default 2) have passed since
-the start-up frame, new frames are keyed y_t instead of x_t, and iSAM2's
-threshold map relinearises them at ``settled_relinearize_threshold`` (2e-2,
-rad / m of gtsam's right perturbation) instead of 1e-2. While tracking, the
-window's past states keep moving by ~0.6 deg as new frames arrive (more so
-with the painted-disc markers holding the slide along the shaft), and at 1e-2
-every such move relinearised all the window's Python pixel factors, a 30-70 ms
-update every few frames (1080x1920 canny recording: 35 frames/s, with 2e-2
-after 2 s: 44, tip error 4.25 / 4.23 px). 2e-2 from the first frame broke the
-start-up from large hand-eye errors (a synthetic start-up 12 mm off diverged
-to 20 mm), whose first seconds move the estimate by degrees.
+Decisions and measurements: docs/decisions/bias-block-timestamps.md,
+smoother-start-up.md, settled-relinearisation.md, startup-search.md.
 """
 from __future__ import annotations
 

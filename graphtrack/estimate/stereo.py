@@ -18,14 +18,9 @@ by right_T_left (:func:`graphtrack.estimate.pf.projection.to_camera`).
 
 The right image's edges are on the SAME edge-bias vector b_j as the left's
 (:mod:`factors.edge_bias`; the slope terms oriented in each image by its own
-camera's reference direction). The state models the detector's slowly varying
-error of the edges' offset and width; the same detector on two nearly identical
-views errs alike. Measured (canny, a 60-frame stereo recording, truth): with the
-right edges on no bias state, a width error of the right edges was read as depth
-and the tip ended 1.7 mm off against 0.4 mm mono; a shared vector also cannot
-absorb the disparity (a lateral offset common to both images does not change it),
-while a second, right-only vector would (within its 0.3 px spread).
-docs/decisions/stereo-edge-bias.md.
+camera's reference direction): the same detector on two nearly identical views
+errs alike, and a shared vector cannot absorb the disparity (an offset common to
+both images does not change it). Measurements: docs/decisions/stereo-edge-bias.md.
 """
 from __future__ import annotations
 
