@@ -119,3 +119,42 @@ def test_garbage_detections_leave_the_prior():
     for e in est.finish():
         np.testing.assert_allclose(e.E, seq.E0, atol=1e-12)
         assert np.all(np.isfinite(e.cov))
+
+
+def test_runaway_refinement_keeps_the_online_pose(monkeypatch):
+    """A refinement that ends outside the hand-eye prior's 99.9 % region (here: LM forced to
+    return every pose 1 m away) is not reported: each such frame keeps the online smoother's
+    pose and says so in kept_online; a refinement inside the region is reported as it is."""
+    import graphtrack.estimate.batch as batch
+    from graphtrack.estimate.lm import LMResult
+
+    seq = sequence(20, seed=3, scene=SCENE)
+    real = batch.levenberg_marquardt
+
+    def far(graph, values, *a, **kw):
+        res = real(graph, values, *a, **kw)
+        moved = gtsam.Values(res.values)
+        for k in range(len(seq.frames)):
+            moved.update(key(k), gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0])).compose(
+                res.values.atPose3(key(k))))
+        return LMResult(moved, res.iterations, res.error, res.linear_solves)
+
+    monkeypatch.setattr(batch, "levenberg_marquardt", far)
+    est, online, out = refine(seq, covariance=False)
+    for a, b in zip(online, out):
+        np.testing.assert_array_equal(a.E, b.E)
+        assert b.extra["kept_online"] == 1.0
+    monkeypatch.setattr(batch, "levenberg_marquardt", real)
+    est, online, out = refine(seq, covariance=False)
+    assert all(e.extra["kept_online"] == 0.0 for e in out)
+
+
+def test_outside_prior_hand_computed():
+    from graphtrack.estimate.reinit import PRIOR_GATE, outside_prior
+    from graphtrack.geometry.se3 import bw_to_matrix
+
+    E0 = SCENE.E0
+    r = np.sqrt(PRIOR_GATE)                      # the region's edge: |b| / sigma_b = r along one axis
+    assert not outside_prior(bw_to_matrix([0.99 * r * 5e-3, 0, 0, 0, 0, 0]) @ E0, E0, 5e-3, 0.035)
+    assert outside_prior(bw_to_matrix([1.01 * r * 5e-3, 0, 0, 0, 0, 0]) @ E0, E0, 5e-3, 0.035)
+    assert outside_prior(bw_to_matrix([0, 0, 0, 0, 1.01 * r * 0.035, 0]) @ E0, E0, 5e-3, 0.035)

@@ -39,6 +39,7 @@ from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussi
                                        left_from_right_cov, split_options)
 from graphtrack.estimate.stereo import stereo_frame_factors
 from factors.edge_bias import BIAS_DIM, bias_key
+from graphtrack.estimate.reinit import outside_prior
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator
 
 
@@ -55,7 +56,9 @@ class BatchEstimator:
     uses_observations = True
     stochastic = False
     supported_observations = OBSERVATION_MODELS
-    extra_columns = STD_COLUMNS
+    #: std_*, and ``kept_online``: 1 where the refined pose left the hand-eye prior's 99.9 % region
+    #: (a run-away refinement) and the online smoother's pose was kept instead
+    extra_columns = STD_COLUMNS + ("kept_online",)
 
     def __init__(self, ctx: TrackingContext, markers: bool = True,
                  prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
@@ -70,6 +73,7 @@ class BatchEstimator:
         self.E0 = np.asarray(ctx.handeye, float)
         self.K = np.asarray(ctx.camera.K, float)
         self.prior_noise = gaussian_bw(self.E0, prior_sigma_b, prior_sigma_w)
+        self.prior_sigma = (float(prior_sigma_b), float(prior_sigma_w))
         self.motion_noise = gaussian_bw(self.E0, motion_sigma_b, motion_sigma_w)
         self.max_iterations = int(max_iterations)
         self.relative_tolerance = float(relative_tolerance)
@@ -202,10 +206,15 @@ class BatchEstimator:
         t3 = time.perf_counter()
         self.stats = {"build_s": t1 - t0, "optimize_s": t2 - t1, "covariance_s": t3 - t2,
                       "iterations": float(res.iterations), "error": res.error}
-        out = []
+        out, kept = [], 0
         for k in range(n):
             E = result.atPose3(key(k)).matrix()
+            away = outside_prior(E, self.E0, *self.prior_sigma) and not outside_prior(
+                self.initial[k], self.E0, *self.prior_sigma)
+            if away:   # a run-away refinement: the online smoother's pose is kept
+                E, covs[k], kept = self.initial[k], None, kept + 1
             cov = None if covs[k] is None else left_from_right_cov(E, covs[k])
             std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            out.append(Estimate(E, std, cov, estimate_extra(cov)))
+            out.append(Estimate(E, std, cov, {**estimate_extra(cov), "kept_online": float(away)}))
+        self.stats["frames_outside_prior"] = float(kept)
         return out

@@ -51,6 +51,14 @@ from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 PRIOR_GATE = 22.46
 
 
+def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
+                  gate: float = PRIOR_GATE) -> bool:
+    """True when E = Exp(x) . E_ref lies outside the prior's region |x / sigma|^2 <= gate, x = (b [m],
+    w [rad]) the left perturbation, sigma = (sigma_b [m] x 3, sigma_w [rad] x 3)."""
+    x = matrix_to_bw(np.asarray(E, float) @ invert(np.asarray(E_ref, float)))
+    return bool(np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2) > gate)
+
+
 @dataclass
 class _Candidate:
     result: SearchResult
