@@ -36,7 +36,7 @@ from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, projec
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
-from graphtrack.geometry.se3 import project_to_so3, so3_exp_batch
+from graphtrack.geometry.se3 import matrix_to_bw, project_to_so3, so3_exp_batch
 from graphtrack.robot.features import base_features
 
 
@@ -117,7 +117,8 @@ class ParticleFilter:
                                      pixel_sigma=pixel_sigma, pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
                                      marker_gamma=marker_gamma, marker_gate=marker_gate,
                                      pixel_effective_count=pixel_effective_count, marker_loss=marker_loss,
-                                     marker_sigma=marker_sigma, marker_huber_k=marker_huber_k)
+                                     marker_sigma=marker_sigma, marker_huber_k=marker_huber_k,
+                                     motion_cov=np.diag(self.motion_std ** 2))
         self.reset()
 
     # -- state ------------------------------------------------------------------------
@@ -179,8 +180,6 @@ class ParticleFilter:
 
     def predicted_lines(self, q: np.ndarray) -> np.ndarray:
         """(2, 2) (rho, theta) of the shaft edges at the current estimate, for a detector's gate."""
-        from graphtrack.geometry.se3 import matrix_to_bw
-
         xm = matrix_to_bw(self.E @ np.linalg.inv(self.E0))
         h = self.hypotheses(q, xm[None])
         return np.stack([h["rho"][0], h["theta"][0]], -1)
@@ -227,12 +226,14 @@ class ParticleFilter:
         self.t += 1
         h = self._project(q)
         informative = self._informative(observation)
-        if self.search is not None and self.search.propose(q, observation, self.E, informative) is not None:
+        if self.search is not None and self.search.propose(q, observation, self.E, informative,
+                                                           self.cov) is not None:
             self._redraw(self.search.result)  # start-up, long gap or divergence: global search (left view)
             h = self._project(q)
         if self.gate_follows and informative and len(observation.markers):
             self._gate_markers(q)
-        if informative or (right is not None and self._informative(right)):
+        rejected = self.search is not None and self.search.rejected   # an outlier frame: predict through it
+        if not rejected and (informative or (right is not None and self._informative(right))):
             self.logw = normalize_log_weights(self.logw + self._loglik(h, observation)
                                               + self._loglik_right(q, None, h, right))
         w = np.exp(self.logw)

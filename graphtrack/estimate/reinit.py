@@ -18,7 +18,7 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   on which the prediction explains little (misfit above the monitor's
   threshold: the tool moved while unseen) nothing is locked: x_c is adopted when
   it explains this frame better than the prediction by more than ``margin``
-  nats. A prediction that still fits keeps its lock (the monitor watches it).
+  nats and explains it (its own misfit under the threshold). A prediction that still fits keeps its lock (the monitor watches it).
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -36,6 +36,21 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   on the occluder's edges wins that frame; as the tool moves with its readings
   and the occluder does not, such a candidate loses the following frames. A
   correct lock is kept; a wrong or lost one is replaced ``confirm`` frames later.
+- Innovation gate: while *locked* (the last ``lock_frames`` frames the
+  estimator used were explained, misfit <= ``lock_threshold``), a frame whose misfit at the
+  current estimate exceeds the monitor's threshold is an outlier frame
+  (``rejected``): the estimator predicts through it without its detections.
+  An occluder (a second instrument, a tissue fold) that covers the shaft shows
+  edges near, but not on, the prediction; used, they pull the estimate off by
+  tens of mm within a second. A lost lock is still caught: the monitor sees
+  the rejected frames' misfits and the candidate test above replaces it. While
+  locked, a candidate must also pass the lock's covariance gate
+  (:meth:`SearchInit.near_lock`: E is nearly constant, so a well-explained lock
+  does not jump 10 mm to an occluder's edges); a lock unused for ``gap`` frames
+  expires, and the next frame is treated as after a gap.
+- Prior guard: an estimate outside the hand-eye prior's region (as the
+  ``prior_gate`` above) has run away (the lumped error never leaves it): the
+  search is run around the prior's centre and its mode adopted at once.
 """
 from __future__ import annotations
 
@@ -49,6 +64,8 @@ from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 
 #: chi^2 with 6 degrees of freedom, 99.9 % point: the hand-eye prior's extent
 PRIOR_GATE = 22.46
+#: a lock's covariance gate is never tighter than this fraction of the search spread
+LOCK_FLOOR = 0.1
 
 
 def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
@@ -74,7 +91,9 @@ class SearchInit:
 
     def __init__(self, ctx, spread=(6e-3, 0.05), gap: int = 30, gate_scale: float = 1.0,
                  markers: bool = True, margin: float = 5.0, seed: int = 0, monitor: bool = True,
-                 n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE, **scorer_options):
+                 n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE,
+                 lock_threshold: float = 0.25, lock_frames: int = 10, innovation_gate: bool = True,
+                 motion_cov: np.ndarray | None = None, **scorer_options):
         b, w = spread
         self.spread = np.array([b] * 3 + [w] * 3, float)
         self.gap = int(gap)
@@ -90,6 +109,15 @@ class SearchInit:
         self.result = None           # the adopted SearchResult (x relative to E_ref)
         self.candidate: _Candidate | None = None
         self.monitor = DivergenceMonitor() if monitor else None
+        self.lock_threshold = float(lock_threshold)
+        self.innovation_gate = bool(innovation_gate)
+        self.lock_run = 0            # consecutive frames used and explained (misfit <= lock_threshold)
+        self.lock_frames = int(lock_frames)
+        self.rejected = False        # this frame is an outlier frame (module doc): predict through it
+        self.rejections = 0          # outlier frames so far
+        self.guarded = 0             # prior-guard re-initialisations so far
+        self.unused = 0              # frames since the estimator last used a frame
+        self.motion_cov = None if motion_cov is None else np.asarray(motion_cov, float)
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
@@ -98,6 +126,8 @@ class SearchInit:
         if self.monitor is not None:
             self.monitor.reset()
         self.candidate = None
+        self.rejected = False
+        self.unused = self.lock_run = 0
         self.count += 1
         self.result = res
         return bw_to_matrix(res.x) @ self.E_ref
@@ -128,7 +158,21 @@ class SearchInit:
         self.candidate = None
         return None
 
-    def propose(self, q, observation, E_current: np.ndarray, informative: bool) -> np.ndarray | None:
+    @property
+    def locked(self) -> bool:
+        """A lock: the last ``lock_frames`` frames used were explained (misfit <= lock_threshold)."""
+        return self.lock_run >= self.lock_frames
+
+    def outside(self, x: np.ndarray) -> bool:
+        """x (relative to E_ref) lies outside the hand-eye prior's region (module doc)."""
+        return bool(np.sum((np.asarray(x, float) / self.spread) ** 2) > self.prior_gate)
+
+    def propose(self, q, observation, E_current: np.ndarray, informative: bool,
+                cov: np.ndarray | None = None) -> np.ndarray | None:
+        """A new initial E (4x4) or None (module doc); ``cov``: the current estimate's left
+        (b, w) covariance (the lock's covariance gate; None: no gate)."""
+        self.rejected = False
+        self.unused += 1
         if not informative:
             if self.since is not None:
                 self.since += 1
@@ -137,12 +181,26 @@ class SearchInit:
         if self.since is None:                      # start-up
             self.since = 0
             return self._adopt(self._search(q, observation, x_cur))
+        if self.outside(x_cur):                     # prior guard: a run-away estimate
+            self.since = 0
+            self.guarded += 1
+            return self._adopt(self._search(q, observation, np.zeros(6)))
         ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
         m_cur = misfit(ll_cur, floor)
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
         threshold = self.monitor.threshold if self.monitor is not None else 0.5
         after_gap = self.since >= self.gap and not m_cur <= threshold   # the prediction explains nothing
         self.since = 0
+        if self.locked and self.unused > self.gap:  # a lock unused for a gap has expired
+            self.lock_run = 0
+            after_gap = not m_cur <= threshold
+        if self.innovation_gate and self.locked and not after_gap and m_cur > threshold:
+            self.rejected = True                    # an outlier frame on a good lock (module doc)
+            self.rejections += 1
+        else:
+            self.unused = 0
+            if np.isfinite(m_cur):
+                self.lock_run = self.lock_run + 1 if m_cur <= self.lock_threshold else 0
         if self.candidate is not None and not after_gap:
             return self._test(q, observation, ll_cur, m_cur)
         if not (after_gap or diverged):
@@ -150,7 +208,24 @@ class SearchInit:
         res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
         if np.sum((res.x / self.spread) ** 2) > self.prior_gate:
             return None
-        if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test
-            return self._adopt(res) if res.loglik > ll_cur + self.margin else None
+        if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test,
+            # for a mode that explains the frame (misfit under the threshold)
+            ok = res.loglik > ll_cur + self.margin and misfit(res.loglik, floor) <= threshold
+            return self._adopt(res) if ok else None
+        if self.locked and not self.near_lock(res.x, x_cur, cov):
+            return None   # the lock's covariance gate: E does not jump
         self.candidate = _Candidate(res)
         return self._test(q, observation, ll_cur, m_cur)
+
+    def near_lock(self, x: np.ndarray, x_cur: np.ndarray, cov: np.ndarray | None) -> bool:
+        """The covariance gate of a lock: (x - x_cur)^T C^-1 (x - x_cur) <= ``prior_gate``
+        with C = cov + n Q + (LOCK_FLOOR spread)^2, n the frames since the lock was last
+        used, Q the estimator's motion model per frame (True without a covariance)."""
+        if cov is None or self.motion_cov is None or not np.all(np.isfinite(cov)):
+            return True
+        C = np.asarray(cov, float) + self.unused * self.motion_cov + np.diag((LOCK_FLOOR * self.spread) ** 2)
+        d = np.asarray(x, float) - np.asarray(x_cur, float)
+        try:
+            return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
+        except np.linalg.LinAlgError:
+            return True

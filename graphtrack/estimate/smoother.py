@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import gtsam
 import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS
@@ -78,10 +79,8 @@ class FixedLagSmootherEstimator:
                  settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
                  start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
-                 search_std_w: float = 0.05, reinit_gap: int = 30, jump_sigma_b: float = 5e-3,
-                 jump_sigma_w: float = 0.035, marker_gate_follows_covariance: bool = False, **options):
-        import gtsam
-
+                 search_std_w: float = 0.05, reinit_gap: int = 30,
+                 marker_gate_follows_covariance: bool = False, **options):
         self.gtsam = gtsam
         self.ctx = ctx
         self.lag = float(lag)
@@ -100,24 +99,8 @@ class FixedLagSmootherEstimator:
         self.covariance = bool(covariance)
         self.bias = bool(self.fopts.edge_bias)   # pixel sets and polar lines alike
         self.bias_stamp = None        # stamp of the frame that opened the newest bias vector
-        if self.kind == "isam2":
-            p = gtsam.ISAM2Params()
-            p.relinearizeSkip = 1
-            th = gtsam.ISAM2ThresholdMap()       # per key letter: x (start-up), y (settled), b
-            th.insert(("x", np.full(6, float(relinearize_threshold))))
-            th.insert(("y", np.full(6, float(settled_relinearize_threshold))))
-            if self.bias:
-                # b enters the pixel residuals linearly (only the robust weights depend on
-                # it, and they stay at b's linearisation point) and the polar lines' nearly
-                # (~0.3 px of rho at a 1-sigma slope, factors/line_parameter.py): relinearising
-                # for its moves (px) re-evaluated every pixel factor of the window each
-                # frame (10x slower)
-                th.insert(("b", np.full(BIAS_DIM, 1e3)))
-            p.setRelinearizeThreshold(th)
-            self.smoother = gtsam.IncrementalFixedLagSmoother(self.lag, p)
-        else:
-            lm = gtsam.LevenbergMarquardtParams()
-            self.smoother = gtsam.BatchFixedLagSmoother(self.lag, lm)
+        self._smoother_params = (float(relinearize_threshold), float(settled_relinearize_threshold))
+        self.smoother = self._new_smoother()
         self.k = -1
         self.settle = float(settle)
         self.start_stamp = None       # stamp of the start-up frame
@@ -137,11 +120,40 @@ class FixedLagSmootherEstimator:
         self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
         if search:
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
-                                     markers)
+                                     markers, motion_cov=self.motion_cov)
             self.start_up_wait = 0    # the search associates markers per hypothesis
-        self.jump_noise = gaussian_bw(self.E0, jump_sigma_b, jump_sigma_w)
+        self.restarts = 0             # re-initialisations (window restarted)
 
     # -- helpers ---------------------------------------------------------------------
+    def _new_smoother(self):
+        """An empty gtsam fixed-lag smoother of the configured kind (module doc)."""
+        gtsam = self.gtsam
+        if self.kind == "batch":
+            return gtsam.BatchFixedLagSmoother(self.lag, gtsam.LevenbergMarquardtParams())
+        relinearize, settled = self._smoother_params
+        p = gtsam.ISAM2Params()
+        p.relinearizeSkip = 1
+        th = gtsam.ISAM2ThresholdMap()       # per key letter: x (start-up), y (settled), b
+        th.insert(("x", np.full(6, relinearize)))
+        th.insert(("y", np.full(6, settled)))
+        if self.bias:
+            # b enters the pixel residuals linearly (only the robust weights depend on
+            # it, and they stay at b's linearisation point) and the polar lines' nearly
+            # (~0.3 px of rho at a 1-sigma slope, factors/line_parameter.py): relinearising
+            # for its moves (px) re-evaluated every pixel factor of the window each
+            # frame (10x slower)
+            th.insert(("b", np.full(BIAS_DIM, 1e3)))
+        p.setRelinearizeThreshold(th)
+        return gtsam.IncrementalFixedLagSmoother(self.lag, p)
+
+    def _restart(self) -> None:
+        """Re-initialisation: drop the window and start up afresh (the hand-eye prior,
+        the search's mode as initial value), as at the first frame."""
+        self.smoother = self._new_smoother()
+        self.prev_key = self.bias_stamp = self.start_stamp = self.last_cov = None
+        self.settled = self.started = False
+        self.restarts += 1
+
     def _stamp(self, frame: Frame) -> float:
         self.last_stamp = monotone_stamp(frame.stamp, self.last_stamp, self.fps)
         return self.last_stamp
@@ -202,6 +214,39 @@ class FixedLagSmootherEstimator:
                 break
         return pose
 
+    def _factors(self, frame: Frame, observation, right, t: float):
+        """This frame's (shaft factors, marker factors, pose key); the key is y_t once settled."""
+        if self.start_stamp is None and self.started:   # start_up=False: from the first frame
+            self.start_stamp = t
+        if not self.settled and self.start_stamp is not None and t - self.start_stamp >= self.settle:
+            self.settled = True
+        x = self.gtsam.symbol("y", self.k) if self.settled else key(self.k)
+        shaft, markers = stereo_factor_groups(self.k, frame.q, observation, right, self.ctx, self.K,
+                                              self._gated_options(frame.q, observation), self.E0, pose_key=x,
+                                              line_bias=self.settled)
+        return shaft, markers, x
+
+    def _open_bias_block(self, k: int, t: float, graph, values, stamps) -> float:
+        """With the edge-bias state, open vector j = k // n at its block's first frame (or
+        the window's): its prior, or phi times vector j - 1's estimate and the transition.
+        Returns the window timestamp of this frame's variables (the block's first
+        frame's with the edge-bias state, so that the block's variables leave together)."""
+        if not self.bias:
+            return t
+        j = k // self.fopts.edge_bias_period
+        if k % self.fopts.edge_bias_period == 0 or self.bias_stamp is None:
+            b0 = np.zeros(BIAS_DIM)
+            dt = None if self.bias_stamp is None else t - self.bias_stamp
+            if dt is not None:
+                b0 = transition(dt, self.fopts.edge_bias_tau) * np.asarray(
+                    self.smoother.calculateEstimateVector(bias_key(j - 1)), float)
+            for f in edge_bias_factors(j, dt, self.fopts):
+                graph.add(f)
+            values.insert(bias_key(j), b0)
+            stamps.insert((bias_key(j), t))
+            self.bias_stamp = t
+        return self.bias_stamp
+
     # -- Estimator -------------------------------------------------------------------
     def step(self, frame: Frame, observation, right=None) -> Estimate:
         gtsam = self.gtsam
@@ -212,47 +257,24 @@ class FixedLagSmootherEstimator:
         values = gtsam.Values()
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         t = self._stamp(frame)
-        if self.start_stamp is None and self.started:   # start_up=False: from the first frame
-            self.start_stamp = t
-        if not self.settled and self.start_stamp is not None and t - self.start_stamp >= self.settle:
-            self.settled = True
-        x = gtsam.symbol("y", k) if self.settled else key(k)
-        if self.bias:
-            every = self.fopts.edge_bias_period
-            j = k // every
-            if k % every == 0:        # open vector j, starting from phi times vector j - 1's estimate
-                b0 = np.zeros(BIAS_DIM)
-                dt = None if k == 0 else t - self.bias_stamp
-                if dt is not None:
-                    b0 = transition(dt, self.fopts.edge_bias_tau) * np.asarray(
-                        self.smoother.calculateEstimateVector(bias_key(j - 1)), float)
-                for f in edge_bias_factors(j, dt, self.fopts):
-                    graph.add(f)
-                values.insert(bias_key(j), b0)
-                stamps.insert((bias_key(j), t))
-                self.bias_stamp = t
-        # the window timestamp of this frame's variables: with the edge-bias state the
-        # bias block's first frame, so that the block's variables leave together
-        stamp = self.bias_stamp if self.bias else t
-        shaft, markers = stereo_factor_groups(k, frame.q, observation, right, self.ctx, self.K,
-                                              self._gated_options(frame.q, observation), self.E0, pose_key=x,
-                                              line_bias=self.settled)
-        jump, found = False, None
+        shaft, markers, x = self._factors(frame, observation, right, t)
+        found = None
         if self.reinit is not None:   # start-up / re-initialisation: initial value from the search
-            found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers))
+            found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers),
+                                        self.last_cov)
+            if self.reinit.rejected:  # an outlier frame on a good lock: predict through it
+                shaft, markers = [], []
             if found is not None:
                 found = gtsam.Pose3(found)
-                jump = self.started   # re-initialisation: a loose motion factor lets x_t move there
-                if jump:
-                    self.last = found
-        if k == 0:
+                if self.started:      # re-initialisation: start up afresh at the search's mode
+                    self._restart()
+                    shaft, markers, x = self._factors(frame, observation, right, t)
+        stamp = self._open_bias_block(k, t, graph, values, stamps)
+        if self.prev_key is None:     # the first frame of the window: the hand-eye prior
             graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
         else:
-            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(),
-                                               self.jump_noise if jump else self.motion_noise))
+            graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
         self.prev_key = x
-        if jump:
-            self.last = self._start_up(k, shaft, markers, x)
         if not self.started:
             if markers and not shaft and self.waited < self.start_up_wait:
                 markers = []          # no marker association before the shaft has been seen
