@@ -43,6 +43,7 @@ Why the lines are on the bias state: docs/decisions/edge-bias-state.md.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from factors.edge_bias import BIAS_DIM, SLOPE_SCALE, limb_bias, limb_bias_jacobian
@@ -145,8 +146,6 @@ def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_
     ``pairing``: the frame's :class:`factors.limb.LimbPairing` (None: nearer limb);
     with ``bias_key`` (the frame's edge-bias vector) on (key, bias_key), ``direction``
     the frame's reference direction of the shaft."""
-    import gtsam
-
     fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta, pairing, bias_key is not None, direction)
     fn.extrinsic = None if extrinsic is None else np.asarray(extrinsic, float)
     noise = make_kernel(kernel).gtsam_noise(gtsam.noiseModel.Diagonal.Sigmas(fn.sig))

@@ -38,6 +38,7 @@ Analytic Jacobian (xi = (omega, v), gtsam's right perturbation E Exp(xi)):
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -174,8 +175,6 @@ def marker_factor(key: int, detections: np.ndarray, points: np.ndarray, K: np.nd
     """gtsam.CustomFactor on Pose3 ``key`` for a frame's marker detections (N, 2); None if
     none. ``discs``: painted-disc samples and normals (see :class:`MarkerError`);
     ``extrinsic``: the observing camera from the left (:mod:`factors.error_function`)."""
-    import gtsam
-
     detections = np.asarray(detections, float).reshape(-1, 2)
     points = np.asarray(points, float).reshape(-1, 3)
     if len(detections) == 0 or len(points) == 0:

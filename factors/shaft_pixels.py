@@ -37,6 +37,7 @@ pixel-effective-count.md, edge-bias-state.md.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from factors.edge_bias import BIAS_DIM, bias_coefficients, limb_bias, limb_bias_jacobian
@@ -127,8 +128,6 @@ def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.nda
     None for the nearer-limb assignment of a lone set; ``weight``: the tempering
     w of the set's cost (module docstring). The noise model is unit
     (whitening and the per-pixel robust kernel happen inside the error function)."""
-    import gtsam
-
     pixels = np.asarray(pixels, float).reshape(-1, 2)
     if len(pixels) == 0:
         return None
