@@ -60,7 +60,7 @@ class LineParameterError(PoseBiasErrorFunction):
     orients u (:func:`factors.edge_bias.reference_direction`; None: +y)."""
 
     def __init__(self, line: np.ndarray, axis: ShaftAxis, K: np.ndarray,
-                 sigma_rho: float = 3.0, sigma_theta: float = 0.01, pairing: LimbPairing | None = None,
+                 sigma_rho: float, sigma_theta: float, pairing: LimbPairing | None = None,
                  bias: bool = False, direction: np.ndarray | None = None):
         self.rho_d, self.theta_d = (float(v) for v in np.asarray(line, float).ravel()[:2])
         self.axis = axis
@@ -137,8 +137,8 @@ class LineParameterError(PoseBiasErrorFunction):
 
 
 
-def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,
-                          sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy",
+def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float,
+                          sigma_theta: float, kernel: RobustKernel | str | None,
                           pairing: LimbPairing | None = None, bias_key: int | None = None,
                           direction: np.ndarray | None = None, extrinsic: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta);

@@ -50,8 +50,8 @@ from graphtrack.geometry.cylinder import ShaftAxis, line_matrix, pixel_residual_
 class ShaftPixelsError(PoseBiasErrorFunction):
     """Typed error function of one edge's pixel set (call it like GTSAM does)."""
 
-    def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
-                 kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None,
+    def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float,
+                 kernel: RobustKernel | str | None, pairing: LimbPairing | None = None,
                  weight: float = 1.0, bias: bool = False, direction: np.ndarray | None = None):
         self.pixels = np.asarray(pixels, float).reshape(-1, 2)
         self.C = bias_coefficients(self.pixels, direction) if bias else None   # (m, 2) or None
@@ -114,7 +114,7 @@ class ShaftPixelsError(PoseBiasErrorFunction):
 
 
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
-                        sigma: float = 1.5, kernel: RobustKernel | str | None = "cauchy",
+                        sigma: float, kernel: RobustKernel | str | None,
                         pairing: LimbPairing | None = None, weight: float = 1.0,
                         bias_key: int | None = None, direction: np.ndarray | None = None,
                         extrinsic: np.ndarray | None = None):
