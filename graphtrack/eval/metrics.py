@@ -273,7 +273,7 @@ def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
         return doc
     truth = read_trajectory(tp)
     tips_base = None
-    if robot is not None and joints and getattr(robot, "tool_tip", None) is not None:
+    if robot is not None and joints and robot.tool_tip is not None:
         fr = sorted(joints)
         q = np.stack([np.asarray(joints[f], float) for f in fr])
         tips = base_features(robot, q).tip
