@@ -35,7 +35,17 @@ def add_detection_arguments(p, weights: bool = True) -> None:
 
 
 def add_estimator_arguments(p, particles: bool = True, smoother: bool = True) -> None:
-    """--particles (pf), --lag and --smoother (fixed-lag smoother), --seed."""
+    """--particles (pf), --lag and --smoother (fixed-lag smoother), --seed; the options a
+    command does not expose keep EstimatorOptions' defaults in ``args`` (and --no-edge-bias,
+    which only ``track`` adds, is False), so :func:`estimator_options_from_args` reads them all."""
+    d = EstimatorOptions()
+    p.set_defaults(no_edge_bias=False)
+    if not particles:
+        p.set_defaults(particles=d.particles)
+    if not smoother:
+        p.set_defaults(lag=d.lag, smoother=d.smoother)
+    if not (particles or smoother):
+        p.set_defaults(no_search=False)
     if particles:
         p.add_argument("--particles", type=int, default=EstimatorOptions.particles,
                        help="particle filter: number of particles")
@@ -85,11 +95,9 @@ def add_mono_argument(p) -> None:
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
-    d = EstimatorOptions()
-    return EstimatorOptions(particles=getattr(args, "particles", d.particles), seed=args.seed,
-                            lag=getattr(args, "lag", d.lag), smoother=getattr(args, "smoother", d.smoother),
-                            edge_bias=not getattr(args, "no_edge_bias", False),
-                            search=not getattr(args, "no_search", False)).check()
+    """The EstimatorOptions of a command line built with :func:`add_estimator_arguments`."""
+    return EstimatorOptions(particles=args.particles, seed=args.seed, lag=args.lag, smoother=args.smoother,
+                            edge_bias=not args.no_edge_bias, search=not args.no_search).check()
 
 
 def options_from_args(args) -> TrackOptions:
