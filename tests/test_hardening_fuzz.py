@@ -173,6 +173,7 @@ def fuzz_cases(valid: Path, rng: random.Random, tmp: Path):
         yield "weights metadata", lambda: check_meta(mutate_doc(meta, rng), Path("w.pt"))
 
 
+@pytest.mark.slow
 def test_fuzz_parsers(valid, tmp_path):
     rng = random.Random(SEED)
     counts, rejected, crashes = {}, 0, []
@@ -193,6 +194,7 @@ def test_fuzz_parsers(valid, tmp_path):
     assert 0 < rejected < n       # the mutations both break and keep documents
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_fuzz_end_to_end(seed, valid, tmp_path, capsys):
     """A mutated recording through ``graphtrack track``: exit 0 with frames tracked, or
