@@ -87,11 +87,18 @@ class Recording:
         """Lines for the user: recording choices made, damage found, messages skipped
         (including, after iterating, the frames whose right image was unusable)."""
         lines = self.notes + list(self.source.warnings)
-        sk = self.right_skips
-        if sum(sk.values()):
-            lines.append(f"{self.path}: {sum(sk.values())} frames without a usable right image "
-                         f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
+        if self.right_skip_warning:
+            lines.append(self.right_skip_warning)
         return lines
+
+    @property
+    def right_skip_warning(self) -> str | None:
+        """The line for the user on the frames yielded so far without a usable right image."""
+        sk = self.right_skips
+        if not sum(sk.values()):
+            return None
+        return (f"{self.path}: {sum(sk.values())} frames without a usable right image "
+                f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
 
     @property
     def stereo(self) -> bool:
