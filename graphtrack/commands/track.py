@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
 from graphtrack.detect import available_detectors
@@ -85,7 +86,12 @@ def add_mono_argument(p) -> None:
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
+    """The EstimatorOptions of a command line (InputError for bad values)."""
     d = EstimatorOptions()
+    if args.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer, got {args.seed}")
+    if not math.isfinite(getattr(args, "lag", d.lag)):
+        raise InputError(f"--lag must be a finite number of seconds, got {args.lag!r}")
     return EstimatorOptions(particles=getattr(args, "particles", d.particles), seed=args.seed,
                             lag=getattr(args, "lag", d.lag), smoother=getattr(args, "smoother", d.smoother),
                             edge_bias=not getattr(args, "no_edge_bias", False),
