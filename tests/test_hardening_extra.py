@@ -214,3 +214,33 @@ def test_full_disk_at_overlay_video_is_one_line(base, tmp_path):  # noqa: F811
     assert p.returncode == 2, p.stderr
     assert re.search(r"overlay\.mp4: cannot write the video", error_line(p.stderr))
     assert_outputs_sane(out)
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGKILL"])
+def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
+    """Already right before #21, kept: SIGINT (exit 130) or SIGKILL mid-run leaves trajectory
+    files of complete, finite rows."""
+    import signal
+    import time
+
+    from graphtrack.sim.simulate import simulate
+
+    rec = simulate(tmp_path / "rec", frames=60, size=(120, 160), form="folder", progress=False)
+    out = tmp_path / "out"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    p = subprocess.Popen([sys.executable, "-m", "graphtrack.cli", "track", str(rec), "--out", str(out), "--quiet",
+                          "--estimator", "pf", "--particles", "20000"], env=env, stderr=subprocess.PIPE, text=True)
+    csv_path, t0 = out / "trajectory.csv", time.monotonic()
+    while p.poll() is None and time.monotonic() - t0 < 120:
+        if csv_path.is_file() and csv_path.read_text().count("\n") >= 3:   # header + 2 rows
+            break
+        time.sleep(0.01)
+    p.send_signal(getattr(signal, sig))
+    err = p.communicate(timeout=60)[1]
+    assert "Traceback" not in err and "internal error" not in err, err
+    if sig == "SIGINT":
+        assert p.returncode == 130 and "interrupted" in err, err
+    else:
+        assert p.returncode == -signal.SIGKILL
+    assert 3 <= csv_path.read_text().count("\n") < 61
+    assert_outputs_sane(out)
