@@ -244,3 +244,38 @@ def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
         assert p.returncode == -signal.SIGKILL
     assert 3 <= csv_path.read_text().count("\n") < 61
     assert_outputs_sane(out)
+
+
+@pytest.mark.parametrize("kind", ["duplicate", "swapped"])
+def test_bag_image_stamps_out_of_order_are_counted_and_warned(kind, base, tmp_path, capsys):  # noqa: F811
+    """A bag whose image stamps repeat: the repeat is skipped (``stamp_order``), warned about
+    and counted. Messages written out of order (each image with its own joints) are read in
+    stamp order. Either way trajectory.tum is in time order, without repeats."""
+    import dataclasses
+    import shutil
+
+    from graphtrack.io.bag_write import write_bag
+    from graphtrack.io.recording import open_recording
+
+    frames = [f for f in open_recording(base / "bag").frames()]
+    stamps = [f.stamp for f in frames]
+    if kind == "duplicate":
+        stamps[3] = stamps[2]
+    else:
+        stamps[2], stamps[3] = stamps[3], stamps[2]
+    rec = tmp_path / "rec"
+    shutil.copytree(base / "bag", rec)
+    (rec / "recording.bag").unlink()
+    write_bag(rec / "recording.bag", [dataclasses.replace(f, stamp=s) for f, s in zip(frames, stamps)])
+    out = tmp_path / "out"
+    code, err = track(rec, out, capsys, quiet=False)
+    assert code == 0, err
+    doc = json.loads((out / "metrics.json").read_text())
+    if kind == "duplicate":
+        assert doc["skipped_reasons"] == {"stamp_order": 1} and doc["frames_tracked"] == 5, doc
+        assert re.search(r"warning: skipping frame \d: stamp", err), err
+    else:
+        assert doc["skipped_reasons"] == {} and doc["frames_tracked"] == 6, doc
+    tum = [float(ln.split()[0]) for ln in (out / "trajectory.tum").read_text().splitlines()]
+    assert tum == sorted(tum) and len(set(tum)) == len(tum)
+    assert_outputs_sane(out)
