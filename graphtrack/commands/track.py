@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
 from graphtrack.detect import available_detectors
@@ -95,7 +96,12 @@ def add_mono_argument(p) -> None:
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
-    """The EstimatorOptions of a command line built with :func:`add_estimator_arguments`."""
+    """The EstimatorOptions of a command line built with :func:`add_estimator_arguments`
+    (InputError for bad values)."""
+    if args.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer, got {args.seed}")
+    if not math.isfinite(args.lag):
+        raise InputError(f"--lag must be a finite number of seconds, got {args.lag!r}")
     return EstimatorOptions(particles=args.particles, seed=args.seed, lag=args.lag, smoother=args.smoother,
                             edge_bias=not args.no_edge_bias, search=not args.no_search).check()
 

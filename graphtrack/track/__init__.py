@@ -131,6 +131,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             run.add(frame, est.E, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
             run.informative.append(obs is not None and (obs.has_shaft or len(obs.markers) > 0))
         _refine(pipe, run, writer, extra)
+    if ctx.stereo and rec.right_skip_warning:   # counted in metrics.json's right_skipped_reasons
+        warn(f"warning: {rec.right_skip_warning}", quiet)
     wall = time.perf_counter() - t_wall
     if bar is not None:
         bar.close()
