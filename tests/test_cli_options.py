@@ -49,6 +49,7 @@ def test_every_option_help_shows_its_default(monkeypatch):
                 continue
             line = lines[a.option_strings[0]]
             where = f"graphtrack {name} {a.option_strings[0]}: {line.strip()!r}"
+            assert a.help and len(a.help.split()) >= 2, where                  # every option says what it does
             if a.required:
                 assert "default" not in line, where
                 continue

@@ -152,3 +152,17 @@ def test_format_doc_names_every_output_file_column_and_key(tracked):
     for f in ("trajectory.tum", "overlay.mp4", "detections_right.csv", "scenario.json", "study.json",
               "table.md", "table.csv", "runtime.csv", "results.csv", "done.json", "error.json"):
         assert f in doc, f
+
+
+def test_readme_python_snippet_runs(tmp_path, monkeypatch):
+    from graphtrack.sim.simulate import simulate
+
+    simulate(tmp_path / "SEQ", "structured", frames=5, seed=1, size=(270, 480), progress=False, form="folder")
+    monkeypatch.chdir(tmp_path)
+    code = re.search(r"```python\n(.*?)```", README.read_text(), re.S).group(1)
+    code = code.replace('TrackOptions(estimator="smoother")', 'TrackOptions(estimator="smoother"), quiet=True, '
+                                                              'progress=False')
+    scope: dict = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    assert scope["E"].shape == (4, 4) and scope["metrics"]["frames_tracked"] == 5
+    assert (tmp_path / "out" / "trajectory.csv").is_file()
