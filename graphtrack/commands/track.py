@@ -7,11 +7,10 @@ The command line builds a :class:`graphtrack.track.TrackOptions` (with its
 """
 from __future__ import annotations
 
-import argparse
 import json
 import math
 
-from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
+from graphtrack.commands.common import HelpFormatter, add_source_arguments, add_threads_argument, source_from_args
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
@@ -21,7 +20,7 @@ from graphtrack.errors import InputError
 from graphtrack.io.run_output import prepare_run_dir, require_tracked
 from graphtrack.track import TrackOptions, track
 
-FORMATTER = argparse.ArgumentDefaultsHelpFormatter
+FORMATTER = HelpFormatter
 
 
 def add_detection_arguments(p, weights: bool = True) -> None:
@@ -30,7 +29,7 @@ def add_detection_arguments(p, weights: bool = True) -> None:
                    help="shaft/marker detector (learned: the shipped CPU line network)")
     if weights:
         p.add_argument("--weights", metavar="FILE", default=DetectionOptions.weights,
-                       help="weights for --detector learned/sold2 (None: the shipped ones)")
+                       help="weights for --detector learned/sold2 (default: the shipped ones)")
     p.add_argument("--alpha", type=float, default=DetectionOptions.alpha, help="pixel-set radius alpha (px)")
     p.add_argument("--beta", type=float, default=DetectionOptions.beta, help="pixel-set heatmap threshold beta")
 
@@ -73,15 +72,15 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
                    help="observation model of the method")
     add_detection_arguments(p)
     p.add_argument("--detect-scale", type=float, default=DetectionOptions.scale, metavar="S",
-                   help="detect on the undistorted image scaled by S (None: auto, at most 960 px wide)")
+                   help="detect on the undistorted image scaled by S (default: auto, at most 960 px wide)")
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     add_mono_argument(p)
     add_estimator_arguments(p, particles=smoother_options, smoother=smoother_options)
     p.add_argument("--no-edge-bias", action="store_true",
                    help="smoother/batch: no edge-bias state (for edges or lines known to be unbiased)")
     p.add_argument("--tip-feature", metavar="NAME", default=TrackOptions.tip_feature,
-                   help="evaluate this robot.json point feature as the tool tip (None: robot.json's tool_tip)")
-    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="track at most N frames (None: all)")
+                   help="evaluate this robot.json point feature as the tool tip (default: robot.json's tool_tip)")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="track at most N frames (default: all)")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
     add_threads_argument(p)
