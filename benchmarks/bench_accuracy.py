@@ -134,7 +134,8 @@ def run(results: dict) -> dict:
         res["tables"][name] = "\n".join(trows)
     res["tables"].update(_paired_tables(out, dict(zip(scenes, paths)), states, shared))
     res["shared_models"] = len(shared)
-    res["study_folder"] = str(out)
+    # relative to the repository (RESULTS.md quotes it; a machine's absolute path means nothing elsewhere)
+    res["study_folder"] = os.path.relpath(out, HERE.parent)
     for line in rows + [""] + spread:
         print(line)
     return results

@@ -29,6 +29,7 @@ from graphtrack.io.frame import Frame  # noqa: E402
 from graphtrack.estimate.batch import BatchEstimator  # noqa: E402
 from graphtrack.io.context import TrackingContext  # noqa: E402
 from graphtrack.estimate.graph import left_error  # noqa: E402
+from graphtrack.estimate.options import LAG_S  # noqa: E402
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator  # noqa: E402
 
 
@@ -45,7 +46,7 @@ def nees_monte_carlo(results: dict, runs: int = 200) -> None:
     t0 = time.perf_counter()
     # synthetic pixels are independent and unbiased: the matched model counts every pixel
     # (no tempering) and has no edge-bias state
-    res = monte_carlo_nees(lambda ctx: FixedLagSmootherEstimator(ctx, lag=1.0, pixel_effective_count=0,
+    res = monte_carlo_nees(lambda ctx: FixedLagSmootherEstimator(ctx, lag=LAG_S, pixel_effective_count=0,
                                                                  edge_bias=False),
                            partial(sequence, scene=make_scene()), runs=runs, first=60, last=200,
                            pixel_noise=1.5, marker_noise=2.0, progress=True)
@@ -90,7 +91,7 @@ def edge_bias_cost(results: dict, ctx, frames, rounds: int = 3) -> None:
     meds = {True: [], False: []}
     for _ in range(rounds):
         for on in (True, False):
-            est = FixedLagSmootherEstimator(ctx, lag=1.0, edge_bias=on)
+            est = FixedLagSmootherEstimator(ctx, lag=LAG_S, edge_bias=on)
             for f in frames:
                 est.step(Frame(f.index, f.stamp, None, f.q[:6], f.q[6]), _obs(f))
             meds[on].append(float(np.median(est.timings_ms[30:])))

@@ -98,6 +98,7 @@ def _accuracy(out: dict, work: Path) -> None:
 
 def _pf(out: dict) -> None:
     from graphtrack.detect.base import Observation
+    from graphtrack.estimate.options import PARTICLES
     from graphtrack.estimate.particle_filter import ParticleFilter
     from graphtrack.geometry.camera import Camera
     from graphtrack.io.context import TrackingContext
@@ -125,7 +126,7 @@ def _pf(out: dict) -> None:
         frames.append((f.frame(), left, Observation("line-intensities", pixels=o.pixels, markers=mr,
                                                     edge_ids=np.arange(2))))
     for stereo in (True, False):
-        pf = ParticleFilter(ctx, particles=1000, seed=0)
+        pf = ParticleFilter(ctx, particles=PARTICLES, seed=0)
         ts = []
         for k in range(220):
             fr, ol, orr = frames[k % len(frames)]

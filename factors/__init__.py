@@ -14,7 +14,7 @@ convention
   (polar observation models), angle wrapped;
 - :mod:`factors.marker`: reprojection of the painted markers (points, or discs
   on the shaft: the centroid of their image) with Hungarian association and a
-  gate (20 px by default);
+  gate;
 - :mod:`factors.robust`: the Huber / Cauchy kernels (gtsam's mEstimator
   definitions), applied per pixel / per marker inside the multi-residual factors;
 - :mod:`factors.edge_bias`: the detector's edge-bias state (lateral / width
@@ -22,6 +22,10 @@ convention
 - :mod:`factors.limb`: the pairing of a frame's shaft observations with the two
   limbs (the limb lines and their derivatives are
   :func:`graphtrack.geometry.cylinder.limb_line_coefficients`).
+
+The noise values, gates and robust kernels have no defaults here: the caller
+passes them (the smoother and the batch from
+:class:`graphtrack.estimate.graph.FactorOptions`, where each is written once).
 
 Synthetic observations for their tests: :mod:`graphtrack.sim.synthetic`.
 """

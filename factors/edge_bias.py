@@ -35,6 +35,7 @@ constant Jacobians.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 #: the bias vector's dimension: (lateral offset, lateral slope, width offset, width slope)
@@ -47,8 +48,6 @@ SLOPE_SCALE = 100.0
 
 def bias_key(k: int) -> int:
     """The gtsam key of frame k's bias vector (symbol 'b', k)."""
-    import gtsam
-
     return gtsam.symbol("b", int(k))
 
 
@@ -100,8 +99,6 @@ def limb_bias_jacobian(limb: int) -> np.ndarray:
 
 def bias_prior_factor(k: int, sigmas: np.ndarray):
     """b_k ~ N(0, diag(sigmas^2)): the bias of the first frame."""
-    import gtsam
-
     return gtsam.PriorFactorVector(bias_key(k), np.zeros(BIAS_DIM),
                                    gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, float)))
 
@@ -147,7 +144,5 @@ class BiasTransitionError:
 
 def bias_transition_factor(k_prev: int, k: int, phi: float, sigmas: np.ndarray):
     """gtsam.CustomFactor tying b_k to b_{k_prev} (see :class:`BiasTransitionError`)."""
-    import gtsam
-
     return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(BIAS_DIM), [bias_key(k_prev), bias_key(k)],
                               BiasTransitionError(phi, sigmas))

@@ -43,6 +43,7 @@ Why the lines are on the bias state: docs/decisions/edge-bias-state.md.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from factors.edge_bias import BIAS_DIM, SLOPE_SCALE, limb_bias, limb_bias_jacobian
@@ -59,7 +60,7 @@ class LineParameterError(PoseBiasErrorFunction):
     orients u (:func:`factors.edge_bias.reference_direction`; None: +y)."""
 
     def __init__(self, line: np.ndarray, axis: ShaftAxis, K: np.ndarray,
-                 sigma_rho: float = 3.0, sigma_theta: float = 0.01, pairing: LimbPairing | None = None,
+                 sigma_rho: float, sigma_theta: float, pairing: LimbPairing | None = None,
                  bias: bool = False, direction: np.ndarray | None = None):
         self.rho_d, self.theta_d = (float(v) for v in np.asarray(line, float).ravel()[:2])
         self.axis = axis
@@ -136,8 +137,8 @@ class LineParameterError(PoseBiasErrorFunction):
 
 
 
-def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float = 3.0,
-                          sigma_theta: float = 0.01, kernel: RobustKernel | str | None = "cauchy",
+def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_rho: float,
+                          sigma_theta: float, kernel: RobustKernel | str | None,
                           pairing: LimbPairing | None = None, bias_key: int | None = None,
                           direction: np.ndarray | None = None, extrinsic: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for one detected line (rho, theta);
@@ -145,8 +146,6 @@ def line_parameter_factor(key: int, line, axis: ShaftAxis, K: np.ndarray, sigma_
     ``pairing``: the frame's :class:`factors.limb.LimbPairing` (None: nearer limb);
     with ``bias_key`` (the frame's edge-bias vector) on (key, bias_key), ``direction``
     the frame's reference direction of the shaft."""
-    import gtsam
-
     fn = LineParameterError(line, axis, K, sigma_rho, sigma_theta, pairing, bias_key is not None, direction)
     fn.extrinsic = None if extrinsic is None else np.asarray(extrinsic, float)
     noise = make_kernel(kernel).gtsam_noise(gtsam.noiseModel.Diagonal.Sigmas(fn.sig))

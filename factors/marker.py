@@ -38,6 +38,7 @@ Analytic Jacobian (xi = (omega, v), gtsam's right perturbation E Exp(xi)):
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -46,7 +47,7 @@ from factors.robust import RobustKernel, make_kernel
 from graphtrack.geometry.se3 import skew
 
 
-def associate(predicted: np.ndarray, detected: np.ndarray, gate: float = 20.0,
+def associate(predicted: np.ndarray, detected: np.ndarray, gate: float,
               usable: np.ndarray | None = None) -> np.ndarray:
     """Hungarian association: a (N,) marker index per detection, -1 if none within ``gate`` px."""
     a = -np.ones(len(detected), int)
@@ -67,8 +68,8 @@ class MarkerError(PoseErrorFunction):
     all zero is a point, predicted at the mean projection of its samples (all of
     them the point, as :func:`graphtrack.robot.features.marker_discs` makes them)."""
 
-    def __init__(self, detections: np.ndarray, points: np.ndarray, K: np.ndarray, sigma: float = 2.0,
-                 gate: float = 20.0, kernel: RobustKernel | str | None = "cauchy", discs=None):
+    def __init__(self, detections: np.ndarray, points: np.ndarray, K: np.ndarray, sigma: float,
+                 gate: float, kernel: RobustKernel | str | None, discs=None):
         self.u = np.asarray(detections, float).reshape(-1, 2)
         self.P = np.asarray(points, float).reshape(-1, 3)
         self.K = np.asarray(K, float)
@@ -168,14 +169,12 @@ class MarkerError(PoseErrorFunction):
 
 
 def marker_factor(key: int, detections: np.ndarray, points: np.ndarray, K: np.ndarray,
-                  sigma: float = 2.0, gate: float = 20.0,
-                  kernel: RobustKernel | str | None = "cauchy", discs=None,
+                  sigma: float, gate: float,
+                  kernel: RobustKernel | str | None, discs=None,
                   extrinsic: np.ndarray | None = None):
     """gtsam.CustomFactor on Pose3 ``key`` for a frame's marker detections (N, 2); None if
     none. ``discs``: painted-disc samples and normals (see :class:`MarkerError`);
     ``extrinsic``: the observing camera from the left (:mod:`factors.error_function`)."""
-    import gtsam
-
     detections = np.asarray(detections, float).reshape(-1, 2)
     points = np.asarray(points, float).reshape(-1, 3)
     if len(detections) == 0 or len(points) == 0:

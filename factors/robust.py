@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
 _TINY = 1e-9
@@ -106,8 +107,6 @@ class RobustKernel:
 
     def gtsam_noise(self, base):
         """``gtsam.noiseModel.Robust`` around ``base`` (or base itself for "none")."""
-        import gtsam
-
         if self.kind == "none":
             return base
         est = {"huber": gtsam.noiseModel.mEstimator.Huber,

@@ -37,6 +37,7 @@ pixel-effective-count.md, edge-bias-state.md.
 """
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 
 from factors.edge_bias import BIAS_DIM, bias_coefficients, limb_bias, limb_bias_jacobian
@@ -49,8 +50,8 @@ from graphtrack.geometry.cylinder import ShaftAxis, line_matrix, pixel_residual_
 class ShaftPixelsError(PoseBiasErrorFunction):
     """Typed error function of one edge's pixel set (call it like GTSAM does)."""
 
-    def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float = 1.5,
-                 kernel: RobustKernel | str | None = "cauchy", pairing: LimbPairing | None = None,
+    def __init__(self, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray, sigma: float,
+                 kernel: RobustKernel | str | None, pairing: LimbPairing | None = None,
                  weight: float = 1.0, bias: bool = False, direction: np.ndarray | None = None):
         self.pixels = np.asarray(pixels, float).reshape(-1, 2)
         self.C = bias_coefficients(self.pixels, direction) if bias else None   # (m, 2) or None
@@ -113,7 +114,7 @@ class ShaftPixelsError(PoseBiasErrorFunction):
 
 
 def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.ndarray,
-                        sigma: float = 1.5, kernel: RobustKernel | str | None = "cauchy",
+                        sigma: float, kernel: RobustKernel | str | None,
                         pairing: LimbPairing | None = None, weight: float = 1.0,
                         bias_key: int | None = None, direction: np.ndarray | None = None,
                         extrinsic: np.ndarray | None = None):
@@ -127,8 +128,6 @@ def shaft_pixels_factor(key: int, pixels: np.ndarray, axis: ShaftAxis, K: np.nda
     None for the nearer-limb assignment of a lone set; ``weight``: the tempering
     w of the set's cost (module docstring). The noise model is unit
     (whitening and the per-pixel robust kernel happen inside the error function)."""
-    import gtsam
-
     pixels = np.asarray(pixels, float).reshape(-1, 2)
     if len(pixels) == 0:
         return None

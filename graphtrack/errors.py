@@ -1,6 +1,7 @@
 """Errors that reach the user as one line and exit status 2, and the checks that raise them."""
 
 import math
+from pathlib import Path
 
 
 class InputError(Exception):
@@ -28,8 +29,6 @@ class FrameError(Exception):
 def read_text(path) -> str:
     """The UTF-8 text of a configuration or CSV file; InputError naming the file when it
     is missing, unreadable, or not UTF-8 (with the byte offset of the first bad byte)."""
-    from pathlib import Path
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: file not found")

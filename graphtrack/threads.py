@@ -28,6 +28,8 @@ def limit_threads(n: int = DEFAULT_THREADS) -> None:
     :func:`set_thread_environment`), the BLAS libraries already loaded
     (threadpoolctl), OpenCV and torch (intra-op; inter-op too while torch has
     not started parallel work)."""
+    # lazy: the CLI imports this module to set the thread environment BEFORE any numerical
+    # library loads (set_thread_environment); only limit_threads needs them
     import cv2
     import torch
     from threadpoolctl import threadpool_limits

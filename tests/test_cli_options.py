@@ -22,15 +22,51 @@ def _subparsers():
     return sub.choices
 
 
-def test_every_option_help_shows_its_default():
+def _help_lines(parser) -> dict[str, str]:
+    """{option string: its entry in the rendered --help, continuation lines joined} (COLUMNS is
+    wide, so the help text is never wrapped, only moved below a long invocation)."""
+    lines, flags = {}, []
+    for line in parser.format_help().splitlines():
+        if line.startswith("  -"):
+            flags = [f for f in line.split("  ")[1].replace(",", " ").split() if f.startswith("-")]
+            for flag in flags:
+                lines[flag] = line
+        elif line.startswith("    ") and flags:
+            for flag in flags:
+                lines[flag] += " " + line.strip()
+        else:
+            flags = []
+    return lines
+
+
+def test_every_option_help_shows_its_default(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "1000")
+    checked = 0
     for name, p in _subparsers().items():
+        lines = _help_lines(p)
         for a in p._actions:
-            if not a.option_strings or a.help in (None, argparse.SUPPRESS) or isinstance(a, argparse._HelpAction):
+            if not a.option_strings or a.help == argparse.SUPPRESS or isinstance(a, argparse._HelpAction):
                 continue
-            shown = "%(default)" in a.help or p.formatter_class is argparse.ArgumentDefaultsHelpFormatter
-            assert shown, f"{name} {a.option_strings[0]}: --help does not show the default"
+            line = lines[a.option_strings[0]]
+            where = f"graphtrack {name} {a.option_strings[0]}: {line.strip()!r}"
+            assert a.help and len(a.help.split()) >= 2, where                  # every option says what it does
+            if a.required:
+                assert "default" not in line, where
+                continue
+            assert line.count("(default: ") == 1, where
+            shown = line.split("(default: ", 1)[1]
+            assert not shown.startswith(("None", "False", "True")), where   # say what happens instead
+            if "default:" in (a.help or ""):
+                continue                                   # the help's own words, e.g. "default: all"
+            if isinstance(a, (argparse._StoreTrueAction, argparse._StoreFalseAction)):
+                assert shown.startswith("off)"), where
+            elif a.default is not None and "%(default)" not in (a.help or ""):
+                assert shown.startswith(f"{a.default})"), where
+            checked += 1
+    assert checked > 60
     text = _subparsers()["track"].format_help()
     assert f"(default: {DetectionOptions.alpha})" in text and "(default: smoother)" in text
+    assert f"(default: {EstimatorOptions.particles})" in text and "(default: learned)" in text
     assert "(default: 540x960)" in _subparsers()["simulate"].format_help()
 
 

@@ -4,7 +4,7 @@ with its reason. A unit that grows past a limit is split by concept (one
 concept per module) or by step (a function per step of its docstring's math).
 
 Run as a script (``python3 tests/test_code_size.py [FUNC MODULE]``) to list the
-units over any limits, e.g. ``80 400`` to find the next candidates.
+units over any limits, e.g. ``70 350`` to find the next candidates.
 """
 from __future__ import annotations
 
@@ -13,13 +13,17 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MAX_FUNCTION_LINES = 100   #: def line to last line, docstring included
-MAX_MODULE_LINES = 450
+MAX_FUNCTION_LINES = 80   #: def line to last line, docstring included (issue #22: ~80)
+MAX_MODULE_LINES = 400   #: issue #22: ~400
 
 #: "path" (a module) or "path:qualified.name" (a function) -> why it may stay over its limit.
 #: estimate/ and factors/ are being edited on other branches: an offender a merge brings
 #: there goes here as "in progress" (none on main when this test was written).
-ALLOWED: dict[str, str] = {}
+ALLOWED: dict[str, str] = {
+    "graphtrack/estimate/smoother.py:FixedLagSmootherEstimator.step":
+        "81 lines; in progress: smoother.py is being changed on another branch (the robustness work), "
+        "split its start-up / update / marginal steps there",
+}
 
 
 def _functions(tree: ast.AST, prefix: str = ""):

@@ -138,6 +138,7 @@ def _monitor_run(scene, x_of_t, frames, seed, pixel_noise=1.0, outliers=0.05):
     return fired_at
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["pf", "smoother"])
 def test_monitor_false_alarm_rate_under_nominal_on_consistent_data(name):
     """The tracker itself on consistent data (noisy pixels with 10 % outliers, noisy

@@ -94,6 +94,7 @@ def test_paired_difference_of_a_constant_shift_is_that_shift_with_no_spread():
     assert r["low"] == pytest.approx(0.25) and r["high"] == pytest.approx(0.25)
 
 
+@pytest.mark.slow
 def test_paired_difference_interval_matches_normal_theory_for_independent_frames():
     rng = np.random.default_rng(3)
     n = 4000
@@ -105,6 +106,7 @@ def test_paired_difference_interval_matches_normal_theory_for_independent_frames
     assert r["low"] < d.mean() < r["high"]
 
 
+@pytest.mark.slow
 def test_paired_difference_blocks_widen_the_interval_for_persistent_errors():
     # 100 independent N(0, 1) values, each held for 30 frames. Oracle: the
     # moving-block bootstrap's mean is the average of k = n / L blocks drawn

@@ -55,6 +55,9 @@ def test_draw_overlay_marks_tip_label_detection(rec):
     mapped = ctx.camera.distort_pixels(np.array([100.0, 135.0]))
     x, y = np.round(mapped).astype(int)
     assert img[y, x - 1: x + 2].max() > 200           # the yellow edge, mapped to raw pixels
+    for pixel in ([50.0, 60.0], [51.0, 60.0]):         # the pixel set: filled cyan dots in raw pixels
+        x, y = np.round(ctx.camera.distort_pixels(np.array(pixel))).astype(int)
+        assert tuple(img[y, x]) == (255, 255, 0) and tuple(img[y + 2, x]) == (255, 255, 0)
 
 
 def test_line_in_image_clips_to_rectangle():

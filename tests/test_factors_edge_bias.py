@@ -9,6 +9,7 @@ from factors.edge_bias import (SLOPE_SCALE, BiasTransitionError, bias_coefficien
                                bias_sigmas, bias_transition_factor, limb_bias, reference_direction,
                                transition)
 from factors.limb import LimbPairing
+from factors.line_parameter import LineParameterError
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from graphtrack.sim.synthetic import make_scene, sequence
 from graphtrack.detect.base import Observation
@@ -19,6 +20,8 @@ from graphtrack.estimate.graph import left_error
 from graphtrack.geometry.cylinder import ShaftAxis, limb_line_coefficients, line_matrix
 from graphtrack.robot.features import base_features
 
+#: (sigma_rho px, sigma_theta rad) of a detected line in these tests
+LINE_SIGMAS = (3.0, 0.01)
 SCENE = make_scene()
 
 
@@ -125,7 +128,7 @@ def test_biased_pixels_jacobians(scene, kernel):
 def test_gtsam_wrapper_has_both_keys(scene):
     robot, cam, E0, f, axis = scene
     x, b = gtsam.symbol("x", 0), bias_key(0)
-    fac = shaft_pixels_factor(x, f.pixels[0], axis, cam.K, bias_key=b)
+    fac = shaft_pixels_factor(x, f.pixels[0], axis, cam.K, 1.5, "cauchy", bias_key=b)
     assert list(fac.keys()) == [x, b]
     v = gtsam.Values()
     v.insert(x, gtsam.Pose3(E0))
@@ -233,16 +236,15 @@ def _batch_errors_with_and_without_bias(robot, cam, E0, frames, observations) ->
 def test_biased_line_parameter_jacobians(scene, E_name):
     """The line-parameter factor with the bias state: [dr/dxi, dr/db] against central
     differences; at b = 0 the residual is the unbiased factor's."""
-    from factors.line_parameter import LineParameterError
-
     robot, cam, E0, f, axis = scene
     E = f.E_true if E_name == "true" else E0
     pose = gtsam.Pose3(E)
     direction = reference_direction(E0, axis.p0, axis.d, cam.K)
     pairing = LimbPairing()
-    fns = [LineParameterError(f.lines[i], axis, cam.K, pairing=pairing, bias=True, direction=direction)
+    fns = [LineParameterError(f.lines[i], axis, cam.K, *LINE_SIGMAS, pairing=pairing, bias=True,
+                              direction=direction)
            for i in range(2)]
-    plain = [LineParameterError(f.lines[i], axis, cam.K, pairing=LimbPairing()) for i in range(2)]
+    plain = [LineParameterError(f.lines[i], axis, cam.K, *LINE_SIGMAS, pairing=LimbPairing()) for i in range(2)]
     b = np.array([0.7, -0.4, -1.1, 0.3])
     for fn, pl in zip(fns, plain):
         r, J = fn.evaluate(E, True, b)
@@ -286,7 +288,7 @@ def test_biased_line_matches_a_moved_limb(scene):
     for i in range(2):
         o, s = limb_bias(b, i)
         line = _moved_line(L[i], o, s, direction, cam.K[:2, 2])
-        fn = LineParameterError(line, axis, cam.K, bias=True, direction=direction)
+        fn = LineParameterError(line, axis, cam.K, *LINE_SIGMAS, bias=True, direction=direction)
         r, _ = fn.evaluate(f.E_true, False, b)
         assert fn.limb == i
         assert abs(r[0]) < 1e-3 and abs(r[1]) < 1e-5

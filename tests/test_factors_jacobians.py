@@ -13,6 +13,9 @@ from graphtrack.sim.synthetic import sequence
 from graphtrack.geometry.cylinder import ShaftAxis, limb_line_coefficients
 from graphtrack.robot.features import base_features
 
+#: (sigma_rho px, sigma_theta rad) of a detected line in these tests (the estimators pass FactorOptions')
+LINE_SIGMAS = (3.0, 0.01)
+
 
 @pytest.fixture(scope="module")
 def scene():
@@ -102,12 +105,12 @@ def test_pairing_gives_the_two_edges_different_limbs(scene):
         fn.evaluate(f.E_true, False)
     assert [fn.limb for fn in paired] == [0, 1]
     # the same for the two detected lines of the polar models
-    lone = [LineParameterError(f.lines[i], axis, cam.K) for i in range(2)]
+    lone = [LineParameterError(f.lines[i], axis, cam.K, *LINE_SIGMAS) for i in range(2)]
     for fn in lone:
         fn.evaluate(E, False)
     assert lone[0].limb == lone[1].limb
     pairing = LimbPairing()
-    lines = [LineParameterError(f.lines[i], axis, cam.K, pairing=pairing) for i in range(2)]
+    lines = [LineParameterError(f.lines[i], axis, cam.K, *LINE_SIGMAS, pairing=pairing) for i in range(2)]
     for fn in lines:
         check(fn, gtsam.Pose3(E))
     assert {lines[0].limb, lines[1].limb} == {0, 1}
@@ -116,13 +119,13 @@ def test_pairing_gives_the_two_edges_different_limbs(scene):
 def test_line_parameter_jacobian_and_wrap(scene):
     robot, cam, E0, f, F, axis = scene
     for i in range(2):
-        fn = LineParameterError(f.lines[i], axis, cam.K)
+        fn = LineParameterError(f.lines[i], axis, cam.K, *LINE_SIGMAS)
         check(fn, gtsam.Pose3(E0))
         r, _ = fn.evaluate(f.E_true)
         assert fn.limb == i and abs(r[1]) < 0.05
         # the same line in its other representation gives the same residual
         rho, th = f.lines[i]
-        fn2 = LineParameterError([-rho, th + np.pi], axis, cam.K)
+        fn2 = LineParameterError([-rho, th + np.pi], axis, cam.K, *LINE_SIGMAS)
         r2, _ = fn2.evaluate(f.E_true)
         np.testing.assert_allclose(r2, r, atol=1e-9)
 
@@ -157,15 +160,16 @@ def test_gtsam_factors_wrap_the_error_functions(scene):
     v = gtsam.Values()
     x = gtsam.symbol("x", 0)
     v.insert(x, gtsam.Pose3(E0))
-    fs = [shaft_pixels_factor(x, f.pixels[0], axis, cam.K), line_parameter_factor(x, f.lines[0], axis, cam.K),
-          marker_factor(x, f.markers, F.points, cam.K)]
+    fs = [shaft_pixels_factor(x, f.pixels[0], axis, cam.K, 1.5, "cauchy"),
+          line_parameter_factor(x, f.lines[0], axis, cam.K, *LINE_SIGMAS, "cauchy"),
+          marker_factor(x, f.markers, F.points, cam.K, 2.0, 20.0, "cauchy")]
     for fac in fs:
         assert np.isfinite(fac.error(v))
         gf = fac.linearize(v)
         A = gf.jacobian()[0]
         assert A.shape[1] == 6 and np.all(np.isfinite(A))
-    assert shaft_pixels_factor(x, np.zeros((0, 2)), axis, cam.K) is None
-    assert marker_factor(x, np.zeros((0, 2)), F.points, cam.K) is None
+    assert shaft_pixels_factor(x, np.zeros((0, 2)), axis, cam.K, 1.5, "cauchy") is None
+    assert marker_factor(x, np.zeros((0, 2)), F.points, cam.K, 2.0, 20.0, "cauchy") is None
 
 
 def test_degenerate_view_is_silent(scene):
@@ -175,7 +179,8 @@ def test_degenerate_view_is_silent(scene):
     on_axis = ShaftAxis.make(Einv[:3, 3] + 0.1 * Einv[:3, 2], Einv[:3, 2], 0.004)
     behind = ShaftAxis.make(Einv[:3, 3] - 0.1 * Einv[:3, 2], Einv[:3, 0], 0.004)
     for ax in (on_axis, behind):
-        for fn in (ShaftPixelsError(f.pixels[0], ax, cam.K), LineParameterError(f.lines[0], ax, cam.K)):
+        for fn in (ShaftPixelsError(f.pixels[0], ax, cam.K, 1.5, "cauchy"),
+                   LineParameterError(f.lines[0], ax, cam.K, *LINE_SIGMAS)):
             e, J = fn.evaluate(E0)
             assert np.all(e == 0) and np.all(J == 0) and fn.limb == -1
 
@@ -199,7 +204,7 @@ def test_painted_disc_marker_jacobian(scene, kernel):
     fn = MarkerError(f.markers, F.points, cam.K, 2.0, 60.0, kernel, (X, N))
     check(fn, pose)
     c, usable, _ = fn.predict(pose.matrix())
-    c_point, _, _ = MarkerError(f.markers, F.points, cam.K).predict(pose.matrix())
+    c_point, _, _ = MarkerError(f.markers, F.points, cam.K, 2.0, 20.0, "cauchy").predict(pose.matrix())
     np.testing.assert_allclose(c[0], c_point[0], atol=1e-9)
     # a visible disc is off its centre's projection; a hidden one is predicted at it
     from graphtrack.geometry.painted_marker import disc_centroid

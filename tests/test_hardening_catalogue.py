@@ -336,6 +336,7 @@ def test_header_only_trajectory(tmp_path):
     assert len(t["frame"]) == 0 and t["E"].shape == (0, 4, 4)
 
 
+@pytest.mark.slow
 def test_full_disk_one_line_and_complete_lines(base, tmp_path):
     """RLIMIT_FSIZE makes every write past the limit fail (EFBIG), as a full disk does."""
     out = tmp_path / "out"

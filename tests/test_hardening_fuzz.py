@@ -15,7 +15,6 @@ import csv
 import json
 import math
 import random
-import time
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ import yaml
 from graphtrack.errors import InputError
 
 SEED = 21
+CASES = 1800   #: mutated documents per parser run (about 4 s on a loaded 2-core machine)
 HOSTILE = [None, True, False, "1.57", "", "nan", "\u00ff", float("nan"), float("inf"), float("-inf"),
            1e308, -1e308, 1e-320, 0, -1, 10 ** 30, 2.5, [], {}, [1, 2], [[1, 2, 3]], {"data": [1]},
            [None, None, None], ["a", "b", "c"], [1e30, 0, 0]]
@@ -173,15 +173,14 @@ def fuzz_cases(valid: Path, rng: random.Random, tmp: Path):
         yield "weights metadata", lambda: check_meta(mutate_doc(meta, rng), Path("w.pt"))
 
 
+@pytest.mark.slow
 def test_fuzz_parsers(valid, tmp_path):
     rng = random.Random(SEED)
     counts, rejected, crashes = {}, 0, []
-    t0 = time.perf_counter()
     cases = fuzz_cases(valid, rng, tmp_path)
-    n = 0
-    while n < 1800 and time.perf_counter() - t0 < 45:
+    n = CASES   # a fixed number of cases (seeded): the test's outcome never depends on the machine's speed
+    for _ in range(n):
         name, case = next(cases)
-        n += 1
         counts[name] = counts.get(name, 0) + 1
         try:
             case()
@@ -190,13 +189,12 @@ def test_fuzz_parsers(valid, tmp_path):
             assert "\n" not in str(e)
         except Exception as e:  # noqa: BLE001 - what the test is for
             crashes.append(f"{name}: {type(e).__name__}: {e}"[:300])
-    elapsed = time.perf_counter() - t0
-    print(f"fuzz: {n} cases in {elapsed:.1f} s, {rejected} rejected, {len(crashes)} uncaught; {counts}")
+    print(f"fuzz: {n} cases, {rejected} rejected, {len(crashes)} uncaught; {counts}")
     assert not crashes, "\n".join(crashes[:20])
-    assert n >= 1000, f"only {n} cases in {elapsed:.1f} s"
     assert 0 < rejected < n       # the mutations both break and keep documents
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(6))
 def test_fuzz_end_to_end(seed, valid, tmp_path, capsys):
     """A mutated recording through ``graphtrack track``: exit 0 with frames tracked, or

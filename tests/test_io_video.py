@@ -26,3 +26,40 @@ def test_video_has_the_recording_rate_and_every_frame(tmp_path, n):
         count += 1
     cap.release()
     assert count == n
+
+
+def _fps_and_count(path):
+    cap = cv2.VideoCapture(str(path))
+    fps, n = cap.get(cv2.CAP_PROP_FPS), int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    return fps, n
+
+
+def test_track_and_detect_videos_play_at_a_25_hz_recordings_rate(tmp_path, capsys):
+    """A 25 Hz recording (stamps 40 ms apart) gives 25 frames/s videos, not the simulator's 30
+    nor a fixed 15; ``track --video`` names overlay.mp4 when it is done."""
+    import csv
+
+    from graphtrack.cli import main
+    from graphtrack.sim.simulate import simulate
+
+    seq = simulate(tmp_path / "seq", "structured", frames=8, seed=2, size=(270, 480), progress=False,
+                   form="folder")
+    with open(seq / "joints.csv") as f:
+        rows = list(csv.reader(f))
+    for k, row in enumerate(rows[1:]):
+        row[1] = repr(1000.0 + k / 25.0)
+    with open(seq / "joints.csv", "w", newline="") as f:
+        csv.writer(f, lineterminator="\n").writerows(rows)
+
+    out = tmp_path / "run"
+    assert main(["track", str(seq), "--out", str(out), "--estimator", "kinematics", "--video"]) == 0
+    done = capsys.readouterr().out.strip().splitlines()[-1]
+    assert done.startswith(f"wrote {out}") and "overlay.mp4" in done and "metrics.json" in done
+    fps, n = _fps_and_count(out / "overlay.mp4")
+    assert fps == pytest.approx(25.0, rel=1e-3) and n == 8
+
+    det = tmp_path / "det"
+    assert main(["detect", str(seq), "--out", str(det), "--detector", "canny", "--video", "--quiet"]) == 0
+    fps, n = _fps_and_count(det / "detections.mp4")
+    assert fps == pytest.approx(25.0, rel=1e-3) and n == 8

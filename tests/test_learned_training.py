@@ -55,6 +55,7 @@ def test_train_command_bad_args(tmp_path, capsys):
     assert main(["train", "--out", str(tmp_path / "w.pt"), "--frames", "0"]) == 2
 
 
+@pytest.mark.slow
 def test_train_init_fine_tunes_from_weights(tmp_path):
     # zero epochs from --init: the written weights are the initial ones, and the
     # metadata holds the command that made them

@@ -5,6 +5,7 @@ import pytest
 from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS, Observation
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.particle_filter import ParticleFilter
+from graphtrack.geometry.lines import pixel_residual
 from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
 
 X_TRUE = np.r_[0.003, 0.0, 0.0, 0.0, np.radians(2.0), 0.0]   # hand-eye error (m, rad)
@@ -146,7 +147,8 @@ def test_absurd_observations_stay_finite(scene, model):
 
 
 def test_pixel_model_matches_per_pixel_formula():
-    """Pruned float32 product against the plain float64 formula, for tight clouds
+    """Pruned float32 product against the plain float64 formula on the reference residual
+    (:func:`graphtrack.geometry.lines.pixel_residual`), for tight clouds
     (most pixels scored against one edge), wide ones and a cloud wrapping theta."""
     rng = np.random.default_rng(5)
     sig, c = 2.0, 3.0
@@ -165,7 +167,7 @@ def test_pixel_model_matches_per_pixel_formula():
         pix = np.concatenate(pix + [rng.uniform(-500, 900, (40, 2))]) + [640, 512]
         rho = rho + np.cos(theta) * 640 + np.sin(theta) * 512
         w = rng.uniform(0.2, 1.0, len(pix))
-        R = np.cos(theta)[:, :, None] * pix[None, None, :, 0] + np.sin(theta)[:, :, None] * pix[None, None, :, 1] - rho[:, :, None]
+        R = pixel_residual(pix[None, None], rho, theta)    # the reference residual, (300, 2, P)
         expect = -(np.minimum((R * R).min(axis=1), (c * sig) ** 2) * w).sum(axis=1) / (2 * sig * sig)
         got = om.pixel_loglik(rho, theta, pix, sig, c, pixel_weights=w)
         np.testing.assert_allclose(got, expect, rtol=1e-5, atol=1e-2)

@@ -1,5 +1,6 @@
 """robot.json and dVRK config loading: every bad input names the file and field."""
 import json
+from pathlib import Path
 
 import pytest
 
@@ -77,3 +78,40 @@ def test_dvrk_files_with_comments_and_both_layouts(tmp_path):
     tool.write_text('{"DH": {"convention": "standard", "links": []}}')
     with pytest.raises(InputError, match="tool.json"):
         load_dvrk_config(arm, tool)
+
+
+def _dvrk_links(path) -> list[dict]:
+    """The joints of a dVRK configuration file, read here without graphtrack's parser."""
+    import re
+
+    text = re.sub(r"/\*.*?\*/", "", Path(path).read_text(), flags=re.S)
+    text = re.sub(r"//[^\n]*", "", text)
+    dh = json.loads(text)["DH"]
+    return dh.get("joints") or dh["links"]
+
+
+def test_robot_command_writes_the_dvrk_files_kinematics_and_the_given_features(tmp_path, capsys):
+    from graphtrack.cli import main
+
+    dvrk = Path(__file__).resolve().parents[1] / "graphtrack" / "data" / "dvrk"
+    arm, tool = dvrk / "psm.json", dvrk / "LARGE_NEEDLE_DRIVER_400006.json"
+    features = json.loads(json.dumps(good()))
+    features["tool_tip"] = {"link": 7, "position": [0.0, 0.0123, 0.0]}
+    (tmp_path / "features.json").write_text(json.dumps(features))
+    out = tmp_path / "seq" / "robot.json"
+    assert main(["robot", str(arm), str(tool), "--out", str(out), "--features-from",
+                 str(tmp_path / "features.json")]) == 0
+    written = json.loads(out.read_text())
+    expected = _dvrk_links(arm) + _dvrk_links(tool)
+    assert len(written["DH_params"]) == len(expected) == 6 and written["has_gripper"] is True
+    for got, want in zip(written["DH_params"], expected):
+        assert got["type"] == want["type"]
+        for key in ("alpha", "A", "theta", "D", "offset"):
+            assert got[key] == pytest.approx(want[key]), (key, got, want)
+    assert written["tool_tip"] == features["tool_tip"]
+    assert written["shaft_features"] == features["shaft_features"]
+    assert load_robot_json(out).n_dh == 6
+    capsys.readouterr()
+    assert main(["robot", str(arm), str(tool), "--out", str(out)]) == 2          # never overwrites silently
+    assert "--overwrite" in capsys.readouterr().err
+

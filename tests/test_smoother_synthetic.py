@@ -49,6 +49,7 @@ def test_noise_free_recovers_E():
     assert set(STD_COLUMNS) <= set(e.extra) and np.all(np.isfinite([e.extra[c] for c in STD_COLUMNS]))
 
 
+@pytest.mark.slow
 def test_default_edge_bias_converges_on_noise_free_data():
     """With the default edge-bias state the estimator is told the edges may be a few px
     off and has to learn from the markers that they are not: on the noise-free
@@ -160,6 +161,7 @@ def test_markers_wait_for_the_shaft_at_start_up():
             assert moved == (f.index >= moved_at), (wait, f.index)
 
 
+@pytest.mark.slow
 def test_batch_refines_whole_recording():
     frames, out, errs = run("batch", 150, walk_sigma=(2.5e-5, 1e-4), pixel_noise=1.5, marker_noise=2.0,
                             pixels_per_edge=150)

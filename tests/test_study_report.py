@@ -22,16 +22,21 @@ def make_cell(root, rec, est, obs, seed=0, repeat=0, result=None, error=None):
     return Cell(rec, str(root / rec), est, obs, str(out), opts, repeat=repeat)
 
 
-def res(mean, std, ms, fps):
-    return {"tip_error_percent_diagonal": {"mean": mean, "std": std}, "runtime_ms": {"median": ms}, "fps_steady": fps,
-            "fps": fps / 2}  # wall-clock fps counts the start-up: never the table's figure
+def res(mean, std, ms, fps, steady=True):
+    """A run's metrics: ``ms`` the median of trajectory.csv's ms, ``fps`` the steady rate (1000 / the
+    steady mean ms, as track writes it); the wall-clock fps counts the start-up: never the table's."""
+    r = {"tip_error_percent_diagonal": {"mean": mean, "std": std}, "runtime_ms": {"median": ms}, "fps_steady": fps,
+         "fps": fps / 2}
+    if steady:
+        r["frame_ms_mean"] = 1e3 / fps
+    return r
 
 
 @pytest.fixture
 def study(tmp_path):
     cells = [
         make_cell(tmp_path, "A", "kinematics", None, result=res(5.0, 1.0, 0.1, 1000.0)),
-        make_cell(tmp_path, "B", "kinematics", None, result=res(7.0, 2.0, 0.2, 900.0)),
+        make_cell(tmp_path, "B", "kinematics", None, result=res(7.0, 2.0, 0.2, 900.0, steady=False)),  # an older run
         # a stochastic estimator with 2 seeds on A: the entry is the mean of the two runs
         make_cell(tmp_path, "A", "pf", "canny", seed=0, result=res(2.0, 0.5, 10.0, 50.0)),
         make_cell(tmp_path, "A", "pf", "canny", seed=1, repeat=1, result=res(3.0, 1.5, 12.0, 40.0)),
@@ -64,7 +69,11 @@ def test_tables_by_hand(study):
     acc, run = data["accuracy"], data["runtime"]
     assert acc[("—", "kinematics"), "A"] == (5.0, 1.0) and acc[("—", "kinematics"), "B"] == (7.0, 2.0)
     assert acc[("canny", "pf"), "A"] == pytest.approx((2.5, 1.0))             # means over the 2 seeds
-    assert run[("canny", "pf"), "A"] == pytest.approx((11.0, 45.0))
+    assert run[("canny", "pf"), "A"] == pytest.approx((22.5, 1e3 / 22.5))      # mean ms of 20 and 25, 1000 / it
+    assert run[("—", "kinematics"), "B"] == pytest.approx((0.2, 5000.0))       # without frame_ms_mean: the median
+    for v in run.values():
+        if not isinstance(v, str) and v[0] == v[0]:
+            assert v[0] * v[1] == pytest.approx(1e3)                         # the two numbers always agree
     assert data["spread"] == {(("canny", "pf"), "A"): (2.0, 3.0, 2)}
     assert acc[("canny", "pf"), "B"] == "error" and acc[("canny", "smoother"), "A"] == "missing"
     assert data["errors"] == [("B", "pf-canny", "boom: detector crashed")]
@@ -74,7 +83,7 @@ def test_tables_by_hand(study):
     assert "| canny | pf | 2.50 (1.00) | error |" in md
     assert "| canny | smoother | missing | n/a (n/a) |" in md         # NaN / None print as n/a
     assert "| canny | pf | 2.00 - 3.00 (2 seeds) | 1 seed |" in md
-    assert "| canny | pf | 11.0 (45.0) | error |" in md
+    assert "| canny | pf | 22.5 (44.4) | error |" in md
     assert "- a note" in md and "- B / pf-canny: boom: detector crashed" in md
 
     t = read_csv(root / "table.csv")
@@ -82,8 +91,8 @@ def test_tables_by_hand(study):
     assert t[1] == ["—", "kinematics", "5.0000", "1.0000", "7.0000", "2.0000"]
     assert t[2] == ["canny", "pf", "2.5000", "1.0000", "error", ""]
     r = read_csv(root / "runtime.csv")
-    assert r[0] == ["observation", "estimator", "A_ms_median", "A_fps", "B_ms_median", "B_fps"]
-    assert r[3] == ["canny", "smoother", "missing", "", "20.000", "30.000"]
+    assert r[0] == ["observation", "estimator", "A_ms_mean", "A_fps", "B_ms_mean", "B_fps"]
+    assert r[3] == ["canny", "smoother", "missing", "", "33.333", "30.000"]
 
     rows = read_csv(root / "results.csv")
     head = rows[0]

@@ -1,23 +1,40 @@
-"""Arguments shared by the commands that read a recording: the arm, topics and threads."""
+"""Arguments shared by the commands that read a recording (the arm, topics, threads) and
+the help formatter every command uses."""
 from __future__ import annotations
+
+import argparse
 
 from graphtrack.errors import InputError
 from graphtrack.io.topics import ARMS, TopicSelection
 from graphtrack.threads import DEFAULT_THREADS
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """``--help`` that states every option's default: ``(default: X)`` after the help text,
+    ``(default: off)`` for an on/off flag, nothing for a required option, and the help's own
+    words where it already says ``default:`` (an option whose default is computed, e.g. "all")."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if (not action.option_strings or action.required or "default:" in text
+                or action.default is argparse.SUPPRESS):
+            return text
+        if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._StoreConstAction)):
+            return text + " (default: off)"
+        return text + " (default: %(default)s)"
+
+
 def add_source_arguments(p) -> None:
     """--arm and the topic overrides (bag recordings; the folder form reads only --arm)."""
     g = p.add_argument_group("recording")
     g.add_argument("--arm", choices=ARMS, default=None,
-                   help="the tracked arm: its joint topics and handeye.yaml keys (default: %(default)s, the only "
-                        "arm the recording has)")
+                   help="the tracked arm: its joint topics and handeye.yaml keys (default: the recording's only arm)")
     g.add_argument("--image-topic", metavar="TOPIC", default=None,
-                   help="left image topic (default: %(default)s, /stereo/left/image, else .../compressed)")
+                   help="left image topic (default: /stereo/left/image, else /stereo/left/image/compressed)")
     g.add_argument("--joint-topic", metavar="TOPIC", default=None,
-                   help="joint topic (default: %(default)s, /dvrk/ARM/state_joint_current or dVRK 2.x /ARM/measured_js)")
+                   help="joint topic (default: /dvrk/ARM/state_joint_current, or dVRK 2.x /ARM/measured_js)")
     g.add_argument("--jaw-topic", metavar="TOPIC", default=None,
-                   help="jaw topic (default: %(default)s, /dvrk/ARM/state_jaw_current or dVRK 2.x /ARM/jaw/measured_js)")
+                   help="jaw topic (default: /dvrk/ARM/state_jaw_current, or dVRK 2.x /ARM/jaw/measured_js)")
 
 
 def source_from_args(args) -> TopicSelection:

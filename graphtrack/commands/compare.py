@@ -71,7 +71,7 @@ def add_parser(sub):
     p.add_argument("--workers", type=int, default=1, metavar="N", help="local worker processes")
     p.add_argument("--ray", metavar="ADDRESS", default=None,
                    help="run cells as Ray tasks: 'local' (start one here), 'auto' or a cluster address "
-                        "(None: local processes)")
+                        "(default: local processes)")
     add_detection_arguments(p)
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     add_estimator_arguments(p)
@@ -79,7 +79,7 @@ def add_parser(sub):
                    help="run each seed-dependent cell (the particle filter; the RANSAC -polar models) "
                         "with seeds SEED..SEED+N-1 and report their mean")
     p.add_argument("--max-frames", type=int, default=StudyOptions.max_frames, metavar="N",
-                   help="frames per recording (None: all)")
+                   help="frames per recording (default: all)")
     p.add_argument("--stereo", choices=VIEWS, default=StudyOptions.views,
                    help="the mono / stereo axis: stereo (both images where a recording has a right one), "
                         "mono (left only), both (every cell twice; the mono rows read 'ESTIMATOR (mono)')")

@@ -156,7 +156,7 @@ def add_parser(sub):
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     add_detection_arguments(p)
     p.add_argument("--video", action="store_true", help="also write detections.mp4")
-    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="detect on at most N frames (None: all)")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="detect on at most N frames (default: all)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--mono", action="store_true",
                    help="left images only (default: also detections_right.csv when the recording has right images)")

@@ -1,9 +1,9 @@
 """``graphtrack simulate OUT``: write a synthetic recording with exact ground truth."""
 from __future__ import annotations
 
-import argparse
 import re
 
+from graphtrack.commands.common import HelpFormatter
 from graphtrack.errors import InputError
 from graphtrack.sim import simulate
 
@@ -17,7 +17,7 @@ def _size(text: str) -> tuple[int, int]:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("simulate", help="write a synthetic dVRK recording with ground truth (truth.csv)",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       formatter_class=HelpFormatter,
                        description="Render a synthetic dVRK PSM + Large Needle Driver recording in the "
                                    "sequence format, plus truth.csv (true E_t and tool tip).")
     p.add_argument("out", metavar="OUT", help="output folder")

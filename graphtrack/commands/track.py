@@ -7,10 +7,10 @@ The command line builds a :class:`graphtrack.track.TrackOptions` (with its
 """
 from __future__ import annotations
 
-import argparse
 import json
+import math
 
-from graphtrack.commands.common import add_source_arguments, add_threads_argument, source_from_args
+from graphtrack.commands.common import HelpFormatter, add_source_arguments, add_threads_argument, source_from_args
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
@@ -20,7 +20,7 @@ from graphtrack.errors import InputError
 from graphtrack.io.run_output import prepare_run_dir, require_tracked
 from graphtrack.track import TrackOptions, track
 
-FORMATTER = argparse.ArgumentDefaultsHelpFormatter
+FORMATTER = HelpFormatter
 
 
 def add_detection_arguments(p, weights: bool = True) -> None:
@@ -29,13 +29,23 @@ def add_detection_arguments(p, weights: bool = True) -> None:
                    help="shaft/marker detector (learned: the shipped CPU line network)")
     if weights:
         p.add_argument("--weights", metavar="FILE", default=DetectionOptions.weights,
-                       help="weights for --detector learned/sold2 (None: the shipped ones)")
+                       help="weights for --detector learned/sold2 (default: the shipped ones)")
     p.add_argument("--alpha", type=float, default=DetectionOptions.alpha, help="pixel-set radius alpha (px)")
     p.add_argument("--beta", type=float, default=DetectionOptions.beta, help="pixel-set heatmap threshold beta")
 
 
 def add_estimator_arguments(p, particles: bool = True, smoother: bool = True) -> None:
-    """--particles (pf), --lag and --smoother (fixed-lag smoother), --seed."""
+    """--particles (pf), --lag and --smoother (fixed-lag smoother), --seed; the options a
+    command does not expose keep EstimatorOptions' defaults in ``args`` (and --no-edge-bias,
+    which only ``track`` adds, is False), so :func:`estimator_options_from_args` reads them all."""
+    d = EstimatorOptions()
+    p.set_defaults(no_edge_bias=False)
+    if not particles:
+        p.set_defaults(particles=d.particles)
+    if not smoother:
+        p.set_defaults(lag=d.lag, smoother=d.smoother)
+    if not (particles or smoother):
+        p.set_defaults(no_search=False)
     if particles:
         p.add_argument("--particles", type=int, default=EstimatorOptions.particles,
                        help="particle filter: number of particles")
@@ -62,15 +72,15 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
                    help="observation model of the method")
     add_detection_arguments(p)
     p.add_argument("--detect-scale", type=float, default=DetectionOptions.scale, metavar="S",
-                   help="detect on the undistorted image scaled by S (None: auto, at most 960 px wide)")
+                   help="detect on the undistorted image scaled by S (default: auto, at most 960 px wide)")
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     add_mono_argument(p)
     add_estimator_arguments(p, particles=smoother_options, smoother=smoother_options)
     p.add_argument("--no-edge-bias", action="store_true",
                    help="smoother/batch: no edge-bias state (for edges or lines known to be unbiased)")
     p.add_argument("--tip-feature", metavar="NAME", default=TrackOptions.tip_feature,
-                   help="evaluate this robot.json point feature as the tool tip (None: robot.json's tool_tip)")
-    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="track at most N frames (None: all)")
+                   help="evaluate this robot.json point feature as the tool tip (default: robot.json's tool_tip)")
+    p.add_argument("--max-frames", type=int, default=None, metavar="N", help="track at most N frames (default: all)")
     p.add_argument("--video", action="store_true", help="also write overlay.mp4")
     p.add_argument("--quiet", action="store_true", help="no progress bar or warnings")
     add_threads_argument(p)
@@ -85,11 +95,14 @@ def add_mono_argument(p) -> None:
 
 
 def estimator_options_from_args(args) -> EstimatorOptions:
-    d = EstimatorOptions()
-    return EstimatorOptions(particles=getattr(args, "particles", d.particles), seed=args.seed,
-                            lag=getattr(args, "lag", d.lag), smoother=getattr(args, "smoother", d.smoother),
-                            edge_bias=not getattr(args, "no_edge_bias", False),
-                            search=not getattr(args, "no_search", False)).check()
+    """The EstimatorOptions of a command line built with :func:`add_estimator_arguments`
+    (InputError for bad values)."""
+    if args.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer, got {args.seed}")
+    if not math.isfinite(args.lag):
+        raise InputError(f"--lag must be a finite number of seconds, got {args.lag!r}")
+    return EstimatorOptions(particles=args.particles, seed=args.seed, lag=args.lag, smoother=args.smoother,
+                            edge_bias=not args.no_edge_bias, search=not args.no_search).check()
 
 
 def options_from_args(args) -> TrackOptions:

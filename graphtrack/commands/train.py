@@ -17,20 +17,19 @@ one core, i.e. several hours for the full schedule.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from graphtrack.commands.common import add_threads_argument
+from graphtrack.commands.common import HelpFormatter, add_threads_argument
 from graphtrack.errors import InputError
 
 
 def add_parser(sub):
     p = sub.add_parser("train", help="train the learned detector on simulated frames",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       formatter_class=HelpFormatter,
                        description="Simulate domain-randomised training frames (both scenes) and train the "
                                    "learned shaft-edge detector; writes a weights file for --detector learned.")
     p.add_argument("--out", required=True, metavar="FILE", help="weights file to write (.pt)")
@@ -40,9 +39,9 @@ def add_parser(sub):
     p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="training device")
     p.add_argument("--batch", type=int, default=32, help="batch size")
     p.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (cosine decay to 1e-5)")
-    p.add_argument("--init", metavar="WEIGHTS", help="fine-tune from this weights file (None: from scratch)")
+    p.add_argument("--init", metavar="WEIGHTS", help="fine-tune from this weights file (default: from scratch)")
     add_threads_argument(p)
-    p.add_argument("--data", metavar="NPZ", help="reuse / write the simulated frames in this .npz cache (None: none)")
+    p.add_argument("--data", metavar="NPZ", help="reuse / write the simulated frames in this .npz cache (default: none)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 

@@ -32,8 +32,10 @@ class DetectionOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
         if self.scale is not None and not 0.05 <= self.scale <= 1.0:
             raise InputError("--detect-scale must be in [0.05, 1]")
-        if not self.alpha > 0:
-            raise InputError("--alpha must be positive")
+        if not 0 < self.alpha < float("inf"):
+            raise InputError(f"--alpha must be a positive number of pixels, got {self.alpha!r}")
+        if not 0 <= self.beta <= 1:   # a heatmap value: outside [0, 1] every or no pixel passes
+            raise InputError(f"--beta must be in [0, 1] (a heatmap threshold), got {self.beta!r}")
         return self
 
     def detector_keywords(self) -> dict:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import time
 
+import gtsam
 import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS
@@ -65,9 +66,6 @@ class BatchEstimator:
                  motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
                  max_iterations: int = 30, relative_tolerance: float = 1e-3,
                  covariance: bool = True, provisional: str = "smoother", fps: float = 30.0, **options):
-        import gtsam
-
-        self.gtsam = gtsam
         self.ctx = ctx
         self.fopts, rest = split_options(dict(options, markers=markers))
         self.E0 = np.asarray(ctx.handeye, float)
@@ -109,7 +107,6 @@ class BatchEstimator:
 
     # -- the whole-recording graph -----------------------------------------------------
     def build(self):
-        gtsam = self.gtsam
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         for k, (q, obs, right) in enumerate(self.frames):
@@ -139,7 +136,6 @@ class BatchEstimator:
         form) gives all diagonal blocks of its inverse in O(n); E_k's marginal is
         its 6 x 6 of its block's.
         """
-        gtsam = self.gtsam
         every = self.every
         nb = (n + every - 1) // every
         frames_in = [min(every, n - j * every) for j in range(nb)]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
 from factors.edge_bias import (bias_key, bias_prior_factor, bias_sigmas, bias_transition_factor,
@@ -35,15 +36,11 @@ _PERM = np.array([3, 4, 5, 0, 1, 2])
 
 
 def key(k: int) -> int:
-    import gtsam
-
     return gtsam.symbol("x", int(k))
 
 
 def right_from_left_cov(E: np.ndarray, cov_bw: np.ndarray) -> np.ndarray:
     """Left (b, w) covariance at E -> gtsam right (omega, v) covariance."""
-    import gtsam
-
     S = np.asarray(cov_bw, float)[np.ix_(_PERM, _PERM)]          # (omega, v) order
     Ai = gtsam.Pose3(E).inverse().AdjointMap()
     C = Ai @ S @ Ai.T
@@ -52,8 +49,6 @@ def right_from_left_cov(E: np.ndarray, cov_bw: np.ndarray) -> np.ndarray:
 
 def left_from_right_cov(E: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
     """gtsam right (omega, v) covariance at E -> left (b, w) covariance."""
-    import gtsam
-
     A = gtsam.Pose3(E).AdjointMap()
     C = A @ np.asarray(cov_right, float) @ A.T
     C = C[np.ix_(_PERM, _PERM)]
@@ -62,16 +57,12 @@ def left_from_right_cov(E: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
 
 def left_error(E_true: np.ndarray, E_est: np.ndarray) -> np.ndarray:
     """(b, w) with E_true = Exp(xi_L) . E_est (gtsam Logmap, reordered)."""
-    import gtsam
-
     xi = gtsam.Pose3.Logmap(gtsam.Pose3(E_true @ np.linalg.inv(E_est)))
     return np.asarray(xi)[_PERM]
 
 
 def gaussian_bw(E: np.ndarray, sigma_b: float, sigma_w: float):
     """gtsam Gaussian noise for isotropic left (b, w) stds at E, in gtsam's right coordinates."""
-    import gtsam
-
     S = np.diag([sigma_b ** 2] * 3 + [sigma_w ** 2] * 3)
     return gtsam.noiseModel.Gaussian.Covariance(right_from_left_cov(E, S))
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
 #: gtsam.LevenbergMarquardtParams' defaults
@@ -47,8 +48,6 @@ def levenberg_marquardt(graph, values, max_iterations: int = 30, relative_tolera
                         absolute_tolerance: float = 1e-5, lambda_initial: float = LAMBDA_INITIAL) -> LMResult:
     """Minimise ``graph``'s cost from ``values`` (gtsam objects: Pose3 and Vector
     variables; see the module docstring)."""
-    import gtsam
-
     dims = values.dims()   # per key: 6 for a Pose3, n for a length-n Vector
     error = graph.error(values)
     lam = float(lambda_initial)

@@ -32,6 +32,7 @@ import itertools
 from functools import lru_cache
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS
 from graphtrack.estimate.pf.pixel_model import (PIXEL_OUTLIER_SIGMAS, PIXEL_SIGMA,  # noqa: F401
@@ -184,8 +185,6 @@ def marker_loglik_mn(u: np.ndarray, v: np.ndarray, visible: np.ndarray, detected
         cost = _assignment_matrix(M, D).T @ dist.reshape(-1, n)
         total = cost.min(axis=0)
     else:
-        from scipy.optimize import linear_sum_assignment
-
         i0 = 0 if estimate_index is None else estimate_index
         r, c = linear_sum_assignment(dist[:, :, i0])
         total = dist[r, c].sum(axis=0) + gate * (D - len(r))

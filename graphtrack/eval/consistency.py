@@ -22,7 +22,6 @@ from tqdm import tqdm
 
 from graphtrack.detect.base import POLAR_MODELS, Observation
 from graphtrack.estimate.graph import left_error
-from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 
 
@@ -57,16 +56,16 @@ def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int
                      progress: bool = False, **observe_kw) -> NeesResult:
     """Monte-Carlo NEES of the estimators built by ``make(ctx)`` (a fresh one per run).
 
-    Run r: ``sequence(n, seed=..., walk_sigma=..., **observe_kw)`` -> (robot,
-    camera, E0, frames), the synthetic world's
+    Run r: ``sequence(n, seed=..., walk_sigma=..., **observe_kw)`` -> a Sequence
+    (ctx, frames, right_frames), the synthetic world's
     (:func:`graphtrack.sim.synthetic.sequence`; passed in, as eval sits below
     sim), with n = k_r + 1 and seed ``seed + 1 + r``, the sequence's default hand-eye error (4.1 mm / 1.6 deg)
     or, with ``prior_std`` = (m, rad), one drawn from N(0, diag(prior_std^2)),
     the true E following the random walk ``walk_sigma`` (m, rad per frame),
     observed with ``observe_kw`` (pixel_noise, marker_noise, pixels_per_edge,
-    ...); scored at one frame k_r ~ U[first, last). Stereo: a ``sequence`` that
-    returns right_frames (:func:`graphtrack.sim.synthetic.stereo_sequence`) gives each
-    estimator a stereo context and each step the right image's observation.
+    ...); scored at one frame k_r ~ U[first, last). The sequence's ``ctx`` is each
+    estimator's context and its ``right_frames`` (None: mono; a list from
+    :func:`graphtrack.sim.synthetic.stereo_sequence`) the right image's observations.
     """
     pick = np.random.default_rng(seed)
     values = []
@@ -75,9 +74,8 @@ def monte_carlo_nees(make, sequence, runs: int = 200, first: int = 60, last: int
         if prior_std is not None:
             observe_kw["handeye_error"] = pick.standard_normal(6) * np.repeat(np.asarray(prior_std, float), 3)
         seq = sequence(k_r + 1, seed=seed + 1 + r, walk_sigma=walk_sigma, **observe_kw)
-        robot, cam, E0, frames = seq[:4]
-        right = getattr(seq, "right_frames", None)
-        est = make(TrackingContext(robot, cam, E0) if right is None else seq.ctx)
+        frames, right = seq.frames, seq.right_frames
+        est = make(seq.ctx)
         for i, f in enumerate(frames):
             fr = Frame(f.index, f.stamp, None, f.q[:6], f.q[6])
             e = (est.step(fr, _observation(f, model)) if right is None

@@ -176,6 +176,7 @@ from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 NEES_95 = (1.2373442457912, 14.4493753446378)
 from graphtrack.geometry.se3 import invert, matrix_to_bw
 from graphtrack.io.trajectory import read_trajectory
+from graphtrack.io.run_output import write_text
 from graphtrack.robot.features import base_features
 
 
@@ -248,12 +249,13 @@ def truth_metrics(errors: dict) -> dict:
 
 
 def write_errors_csv(path: str | Path, errors: dict) -> None:
-    """Per-frame truth errors as CSV (frame, trans_mm, rot_deg, tip_mm, tip2d_px[, nees])."""
+    """Per-frame truth errors as CSV (frame, trans_mm, rot_deg, tip_mm, tip2d_px[, nees]),
+    written whole or not at all; InputError naming the file when it cannot be written."""
     cols = [c for c in ("trans_mm", "rot_deg", "tip_mm", "tip2d_px", "nees") if c in errors]
-    with Path(path).open("w") as f:
-        f.write(",".join(["frame"] + cols) + "\n")
-        for k, fr in enumerate(errors["frame"]):
-            f.write(",".join([str(int(fr))] + [repr(float(errors[c][k])) for c in cols]) + "\n")
+    lines = [",".join(["frame"] + cols)]
+    lines += [",".join([str(int(fr))] + [repr(float(errors[c][k])) for c in cols])
+              for k, fr in enumerate(errors["frame"])]
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
@@ -273,7 +275,7 @@ def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
         return doc
     truth = read_trajectory(tp)
     tips_base = None
-    if robot is not None and joints and getattr(robot, "tool_tip", None) is not None:
+    if robot is not None and joints and robot.tool_tip is not None:
         fr = sorted(joints)
         q = np.stack([np.asarray(joints[f], float) for f in fr])
         tips = base_features(robot, q).tip

@@ -21,6 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from graphtrack.detect.base import Detection, Observation
+from graphtrack.estimate.base import Estimate
 from graphtrack.io.video import StampedVideoWriter
 from graphtrack.robot.features import base_features
 
@@ -108,16 +110,16 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
         for x1, y1, x2, y2 in np.asarray(detection.shaft_segments, float).reshape(-1, 4):
             draw_polyline_raw(img, cam, sample_segment((x1, y1), (x2, y2), 16), YELLOW, 3)
     if observation is not None:
-        for pix in getattr(observation, "pixels", []) or []:
+        for pix in observation.pixels or []:
             pix = np.asarray(pix, float).reshape(-1, 2)
             if len(pix):
                 for u, v in _pts(cam.distort_pixels(pix)) // 16:
                     if 0 <= u < w and 0 <= v < h:
                         cv2.circle(img, (int(u), int(v)), 2, CYAN, -1)
     markers = None
-    if detection is not None and len(getattr(detection, "markers", [])):
+    if detection is not None and len(detection.markers):
         markers = detection.markers
-    elif observation is not None and len(getattr(observation, "markers", [])):
+    elif observation is not None and len(observation.markers):
         markers = observation.markers
     if markers is not None:
         for uv in cam.distort_pixels(np.asarray(markers, float).reshape(-1, 2)):
@@ -152,7 +154,7 @@ class OverlayWriter:
         self.ctx = ctx
         self.labels = labels or {}
         self.labels_right = labels_right or {}
-        self.right_ctx = dataclasses.replace(ctx, camera=ctx.right) if getattr(ctx, "stereo", False) else None
+        self.right_ctx = dataclasses.replace(ctx, camera=ctx.right) if ctx.stereo else None
         self.title = title
         self._video = StampedVideoWriter(self.path, fps)
 
@@ -165,9 +167,9 @@ class OverlayWriter:
     def frames_written(self) -> int:
         return self._video.frames_received
 
-    def write(self, frame, estimate, detection=None, observation=None, tip_uv_raw=None,
-              right=(None, None)) -> None:
-        E = None if estimate is None else getattr(estimate, "E", estimate)
+    def write(self, frame, estimate: Estimate | None, detection: Detection | None = None,
+              observation: Observation | None = None, tip_uv_raw=None, right=(None, None)) -> None:
+        E = None if estimate is None else estimate.E
         label = self.labels.get(int(frame.index))
         text = f"frame {frame.index}" + (f"  {self.title}" if self.title else "")
         img = draw_overlay(frame.image, self.ctx, frame.q, E, detection, observation, tip_uv_raw, label, text)

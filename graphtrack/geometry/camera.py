@@ -200,12 +200,12 @@ def _image_size(doc: dict, path: Path) -> tuple[int, int]:
 
 
 def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
-    """K: positive focal lengths (<= 1e6 px), principal point within one image size of the
+    """K: focal lengths in [1, 1e6] px, principal point within one image size of the
     image, last row (0, 0, 1), K[1, 0] = 0."""
     K = _matrix(doc, key, 9, path).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    if not (0 < fx <= 1e6 and 0 < fy <= 1e6):
-        raise InputError(f"{path}: key '{key}': focal lengths must be in (0, 1e6] px, got {fx:g}, {fy:g}")
+    if not (1 <= fx <= 1e6 and 1 <= fy <= 1e6):   # below 1 px: a field of view of nearly 180 deg
+        raise InputError(f"{path}: key '{key}': focal lengths must be in [1, 1e6] px, got {fx:g}, {fy:g}")
     if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
         raise InputError(f"{path}: key '{key}': principal point ({cx:g}, {cy:g}) is far outside the "
                          f"{w}x{h} image")

@@ -113,11 +113,23 @@ class FolderSource:
                 self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")
         elif (self.path / "video.mp4").is_file():
             self.video = self.path / "video.mp4"
+            self._check_video_length()
         else:
             raise InputError(f"{self.path}: neither frames/ nor video.mp4 holds the images")
 
     def __len__(self) -> int:
         return int(self.n_images)
+
+    def _check_video_length(self) -> None:
+        """InputError when video.mp4 holds more frames than joints.csv has rows (the
+        container's frame count): as with frames/, frames are never re-paired."""
+        cap = cv2.VideoCapture(str(self.video))
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        cap.release()
+        if n > self.n_images:
+            raise InputError(f"{self.video}: holds {n} frames but joints.csv has {self.n_images} rows "
+                             f"(first frame without a row: {self.n_images}); every frame needs its own row, "
+                             "frames are never re-paired")
 
     def stamps(self) -> np.ndarray:
         """Frame stamps (s) from joints.csv."""

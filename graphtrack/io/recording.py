@@ -87,11 +87,18 @@ class Recording:
         """Lines for the user: recording choices made, damage found, messages skipped
         (including, after iterating, the frames whose right image was unusable)."""
         lines = self.notes + list(self.source.warnings)
-        sk = self.right_skips
-        if sum(sk.values()):
-            lines.append(f"{self.path}: {sum(sk.values())} frames without a usable right image "
-                         f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
+        if self.right_skip_warning:
+            lines.append(self.right_skip_warning)
         return lines
+
+    @property
+    def right_skip_warning(self) -> str | None:
+        """The line for the user on the frames yielded so far without a usable right image."""
+        sk = self.right_skips
+        if not sum(sk.values()):
+            return None
+        return (f"{self.path}: {sum(sk.values())} frames without a usable right image "
+                f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
 
     @property
     def stereo(self) -> bool:
@@ -273,5 +280,23 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
     if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:
         raise InputError(f"{path / 'joints.csv'}: rows hold {source.n_columns} joints (q1..q{source.n_columns}) "
                          f"but {path / 'robot.json'} has {n_joints} DH joints")
-    return Recording(path, calibration, handeye, robot, labels, n_joints, source,
-                     notes=notes, labels_right=labels_r)
+    rec = Recording(path, calibration, handeye, robot, labels, n_joints, source,
+                    notes=notes, labels_right=labels_r)
+    rec.notes += _consistency_notes(rec)
+    return rec
+
+
+def _consistency_notes(rec: Recording) -> list[str]:
+    """Lines for the user on parts of a recording that will not be used: labels of frames
+    the recording does not have (labels of another recording?), and right images without
+    the right camera's calibration (tracked left-only)."""
+    notes = []
+    for name, labels in (("labels.csv", rec.labels), ("labels_right.csv", rec.labels_right)):
+        beyond = sorted(k for k in (labels or {}) if k >= len(rec))
+        if beyond:
+            notes.append(f"{rec.path / name}: {len(beyond)} labels of frames the recording does not have "
+                         f"(it has {len(rec)} frames; first: frame {beyond[0]}); they are not scored")
+    if rec.has_right_images and rec.calibration.right is None:
+        notes.append(f"{rec.path}: right images but no K2, D2, R, T in camera_calibration.yaml; "
+                     "tracking the left image only")
+    return notes

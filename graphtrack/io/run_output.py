@@ -5,8 +5,8 @@
   files are the user's and are kept), so a new, shorter run never sits beside an
   old run's overlay.mp4 or truth_errors.csv.
 - :func:`write_json`: metrics.json as strict JSON (RFC 8259): NaN and infinities
-  become ``null``; written to a temporary file and renamed, so a full disk leaves
-  the old file or none, never half of one.
+  become ``null``; like every :func:`write_text`, written to a temporary file and
+  renamed, so a full disk leaves the old file or none, never half of one.
 - :func:`require_tracked`: a run that tracked no frame is an error (exit status 2)
   naming the skip reasons and the first skipped frame, never a silent exit 0.
 """
@@ -21,7 +21,7 @@ from graphtrack.errors import InputError
 
 #: the files a tracking run writes into its output folder
 RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", "truth_errors.csv",
-             "trajectory.csv.tmp", "trajectory.tum.tmp", "metrics.json.tmp")
+             "trajectory.csv.tmp", "trajectory.tum.tmp", "metrics.json.tmp", "truth_errors.csv.tmp")
 
 
 def prepare_run_dir(out: str | Path, overwrite: bool = False) -> Path:
@@ -59,11 +59,18 @@ def strict(obj):
 def write_json(path: str | Path, doc) -> None:
     """Write ``doc`` as strict, indented JSON (NaN/inf -> null), atomically; InputError
     naming the file when it cannot be written (full disk, ...)."""
+    write_text(path, json.dumps(strict(doc), indent=2, allow_nan=False) + "\n")
+
+
+def write_text(path: str | Path, text: str) -> None:
+    """Write ``text`` to a temporary file beside ``path`` and rename it over ``path``, so a
+    full disk leaves the old file or none, never a cut-off one; InputError naming the
+    file when it cannot be written."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     try:
-        with tmp.open("w") as f:
-            f.write(json.dumps(strict(doc), indent=2, allow_nan=False) + "\n")
+        with tmp.open("w", encoding="utf-8", newline="") as f:
+            f.write(text)
         os.replace(tmp, path)
     except OSError as e:
         try:

@@ -4,7 +4,8 @@
 (OpenCV's mp4v codec) whose frame rate is the recording's: 1 / the median
 interval between the stamps of the first ``probe`` frames (held back until
 then), or ``fallback_fps`` when the stamps do not tell (fewer than two
-finite, increasing stamps).
+finite, increasing stamps). ``close()`` reads the finished file's frame count back,
+so a video cut short (full disk) is an InputError, not a silent broken file.
 """
 from __future__ import annotations
 
@@ -75,11 +76,19 @@ class StampedVideoWriter:
         return self.frames_written + len(self._held)
 
     def close(self) -> None:
+        """Finish the file; InputError naming it when it does not hold every frame written
+        (OpenCV's writer fails silently, e.g. on a full disk)."""
         if self._held:
             self._flush()
         if self._writer is not None:
             self._writer.release()
             self._writer = None
+            cap = cv2.VideoCapture(str(self.path))
+            n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+            cap.release()
+            if n != self.frames_written:
+                raise InputError(f"{self.path}: cannot write the video ({n} of {self.frames_written} frames "
+                                 "readable; is the disk full?)")
 
     def __enter__(self):
         return self

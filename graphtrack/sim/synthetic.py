@@ -219,6 +219,11 @@ class Sequence(NamedTuple):
     def ctx(self):
         return TrackingContext(self.robot, self.camera, self.E0)
 
+    @property
+    def right_frames(self) -> None:
+        """No right image (:class:`StereoSequence` has them): one attribute for both kinds."""
+        return None
+
 
 def sequence(n: int, seed: int = 0, fps: float = 30.0, handeye_error=HANDEYE_ERROR,
              walk_sigma: tuple[float, float] = (0.0, 0.0), scene: Scene | None = None, amplitude: float = 1.0,

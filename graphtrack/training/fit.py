@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 import torch
 
+from graphtrack.detect.learned import load_weights
 from graphtrack.detect.learned_net import ARCH, LineNet
 from graphtrack.training.labels import target_maps
 
@@ -73,8 +74,6 @@ def jpeg_roundtrip(images: np.ndarray, quality: int = 95) -> np.ndarray:
 def initial_net(init=None, width: int = 16, stem: int = 8):
     """A fresh LineNet(width, stem), or the trainable (unfused) net of weights file
     ``init`` (its own width and stem) to fine-tune from; InputError when unusable."""
-    from graphtrack.detect.learned import load_weights
-
     if init is None:
         return LineNet(width, stem)
     load_weights(init)  # validates the file (architecture, shapes) with the detector's own checks

@@ -1,0 +1,178 @@
+"""The tracking loop: recording -> undistort -> detect -> observe -> estimate -> write.
+
+``track`` streams a recording frame by frame through one estimator and writes
+trajectory.csv / trajectory.tum row by row (flushed, so an interruption loses
+nothing already computed), then metrics.json when labels.csv exists. A bad
+frame (corrupt image, NaN joints, ...) is skipped, warned about and counted in
+metrics.json; bad recordings raise InputError before anything is written.
+
+The per-frame pipeline is :mod:`graphtrack.track.pipeline` (re-exported here:
+TrackOptions, Pipeline, tip_pixel, ...); what a run collects as it goes,
+:mod:`graphtrack.track.runlog`.
+"""
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from graphtrack.errors import FrameError, InputError
+from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
+from graphtrack.eval.overlay import OverlayWriter
+from graphtrack.eval.robustness import no_detection_stretches
+from graphtrack.eval.stereo import stereo_tip_metrics
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.run_output import write_json
+from graphtrack.io.outdir import writable_dir
+from graphtrack.io.recording import Recording, open_recording
+from graphtrack.io.topics import TopicSelection
+from graphtrack.io.trajectory import TrajectoryWriter
+from graphtrack.track.pipeline import MAX_GATE_PX, Pipeline, TrackOptions, tip_pixel, tip_point  # noqa: F401
+from graphtrack.track.runlog import RunLog, read_frames, untrackable, warn
+
+
+def _evaluated_tip(rec: Recording, tip_feature: str | None):
+    """The robot with the point that is evaluated as the tool tip (format doc: robot.json's
+    ``tool_tip``; when it is missing, evaluation must be told which point feature to use)."""
+    robot = rec.robot
+    if tip_feature:
+        names = {p.name: p for p in robot.point_features}
+        if tip_feature not in names:
+            raise InputError(f"--tip-feature: {rec.path / 'robot.json'} has no point feature {tip_feature!r} "
+                             f"(it has: {', '.join(names) or 'none'})")
+        return dataclasses.replace(robot, tool_tip=names[tip_feature])
+    if robot.tool_tip is None and rec.labels:
+        raise InputError(f"{rec.path / 'robot.json'}: no tool_tip, so labels.csv cannot be scored; "
+                         "name the point feature to evaluate with --tip-feature NAME")
+    return robot
+
+
+def _open(path: str | Path, options: TrackOptions, quiet: bool,
+          topics: TopicSelection) -> tuple[Recording, TrackingContext]:
+    """The recording (checked; its warnings printed unless quiet) and its tracking context."""
+    rec = open_recording(path, topics=topics)
+    if rec.robot.has_gripper and not rec.has_jaw:
+        raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
+                         "(/dvrk/PSM1/state_jaw_current or the joints.csv 'jaw' column); the tool tip "
+                         "would be wrong without them")
+    for w in rec.warnings:
+        warn(f"warning: {w}", quiet)
+    rec.robot = _evaluated_tip(rec, options.tip_feature)
+    cal = rec.calibration
+    if options.stereo and rec.stereo:
+        return rec, TrackingContext(rec.robot, cal.left, rec.handeye, cal.right, cal.right_T_left)
+    return rec, TrackingContext(rec.robot, cal.left, rec.handeye)
+
+
+
+def _refine(pipe: Pipeline, run: RunLog, writer: TrajectoryWriter, extra: list[str]) -> None:
+    """An offline estimator's refined estimates replace every streamed row and tip."""
+    refined = pipe.estimator.finish()
+    if refined is None:
+        return
+    run.tips, rows = [], []
+    for i, ((fi, stamp, q, ms, E0), est) in enumerate(zip(run.rows, refined)):
+        E = est.E if np.all(np.isfinite(est.E)) else E0   # a non-finite refinement keeps the streamed pose
+        tip = tip_pixel(pipe.ctx, q, E)
+        run.tips.append(tip)
+        run.rows[i] = (fi, stamp, q, ms, E)
+        rows.append((fi, stamp, E, tip, ms, _extras(est, extra)))
+    writer.rewrite_all(rows)
+
+
+def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
+          progress: bool = True, max_frames: int | None = None, quiet: bool = False,
+          topics: TopicSelection = TopicSelection()) -> dict:
+    """Run one estimator over a recording; write the outputs into ``out``; return metrics.
+
+    ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`).
+
+    The returned dict is metrics.json's content plus ``timing`` (median ms
+    per stage) and ``fps``.
+    """
+    rec, ctx = _open(path, options, quiet, topics)
+    out = writable_dir(out)
+    pipe = Pipeline(ctx, options)
+    extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
+    overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels,
+                            labels_right=rec.labels_right) if video else None
+    run = RunLog()
+    total = len(rec) if max_frames is None else min(len(rec), max_frames)
+    bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
+               disable=quiet) if progress else None
+    t_wall = time.perf_counter()
+    with TrajectoryWriter(out, extra_columns=extra) as writer:
+        for item, t_decode, t0 in read_frames(rec, max_frames, run, bar):
+            if not isinstance(item, FrameError):
+                item = untrackable(item, rec.robot.n_joints, run.last_stamp) or item
+            if isinstance(item, FrameError):
+                run.skipped.skip(item, quiet)
+                continue
+            frame = item
+            est, det, obs, ms = pipe.step(frame)
+            if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
+                run.skipped.skip(FrameError(frame.index, "nonfinite_estimate",
+                                            "the estimator returned a non-finite pose"), quiet)
+                pipe.last_E, pipe.last_std = ctx.handeye.copy(), None
+                continue
+            t = time.perf_counter()
+            tip = tip_pixel(ctx, frame.q, est.E)
+            total_ms = t_decode + sum(ms.values())
+            writer.write(frame.index, frame.stamp, est.E, tip, total_ms, _extras(est, extra))
+            if overlay is not None:
+                overlay.write(frame, est, det, obs, tip, pipe.right)
+            ms["write"] = 1e3 * (time.perf_counter() - t)
+            ms["decode"] = t_decode
+            run.add(frame, est.E, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0))
+            run.informative.append(obs is not None and (obs.has_shaft or len(obs.markers) > 0))
+        _refine(pipe, run, writer, extra)
+    if ctx.stereo and rec.right_skip_warning:   # counted in metrics.json's right_skipped_reasons
+        warn(f"warning: {rec.right_skip_warning}", quiet)
+    wall = time.perf_counter() - t_wall
+    if bar is not None:
+        bar.close()
+    if overlay is not None:
+        overlay.close()
+    result = _result(path, out, options, rec, ctx, run, pipe.left_only)
+    result.update(run.summary(wall))
+    if pipe.needs_images:
+        result["no_detection_stretches"] = stretches = no_detection_stretches(run.frames, run.informative)
+        for a, b in stretches:
+            warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
+                  "motion model's prediction (std_* columns grow)", quiet)
+    write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
+    return result
+
+
+def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, run: RunLog,
+            left_only: int = 0) -> dict:
+    """metrics.json's run description, skip counts, tip metrics (labels.csv; with
+    labels_right.csv the right-image and triangulated 3-D ones) and truth metrics (truth.csv)."""
+    result = {"estimator": options.estimator, "observation": options.observation,
+              "detector": options.detection.detector, "frames_tracked": len(run.frames),
+              "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values())),
+              "frames_total": run.read, "skip_examples": run.skipped.examples}
+    if rec.stereo:
+        result.update(stereo=bool(ctx.stereo), frames_left_only=int(left_only),
+                      right_skipped_reasons={k: int(v) for k, v in rec.right_skips.items()})
+    if rec.labels is not None:
+        tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
+        result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))
+    if rec.labels_right and rec.calibration.stereo:
+        tips_3d = np.array([tip_point(ctx, r[2], r[4]) for r in run.rows]).reshape(-1, 3)
+        result.update(stereo_tip_metrics(rec.calibration, run.frames, tips_3d, rec.labels, rec.labels_right))
+    result.update(evaluate_against_truth(path, out, rec.robot, {r[0]: r[2] for r in run.rows}))
+    return result
+
+
+def _extras(est: Estimate, columns: list[str]) -> dict:
+    vals = dict(est.extra)
+    if est.std is not None:
+        vals.update({c: float(v) for c, v in zip(STD_COLUMNS, est.std)})
+    return {c: vals.get(c, float("nan")) for c in columns}
+

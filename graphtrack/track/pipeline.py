@@ -1,0 +1,202 @@
+"""One frame through the tracking pipeline: undistort, detect, observe, estimate.
+
+:class:`TrackOptions` selects a run (estimator, observation model, detection and
+estimation options); :class:`Pipeline` steps one frame at a time, gating the
+detector with the shaft predicted from the last estimate; :func:`tip_pixel` is the
+evaluated tool tip of an estimate.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from graphtrack.detect import make_detector, observe
+from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
+from graphtrack.estimate import estimator_class, make_estimator
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.frame import Frame
+from graphtrack.robot.features import base_features, shaft_lines
+
+ESTIMATOR = "smoother"   #: the default estimator: the fixed-lag smoother
+
+
+@dataclass(frozen=True)
+class TrackOptions:
+    """Everything that selects one tracking run (also the key of a study cell).
+
+    estimator: a name of :data:`graphtrack.estimate.ESTIMATORS`; observation:
+    the observation model (:data:`graphtrack.detect.base.OBSERVATION_MODELS`);
+    seed: of the observation's RANSAC draws (the estimator's own is in
+    ``estimation``; the CLI and the studies set both from one seed); tip_feature:
+    a point feature to evaluate instead of robot.json's tool_tip; stereo: use the
+    right image too when the recording has one (False: ``--mono``, left only).
+    """
+
+    estimator: str = ESTIMATOR
+    observation: str = OBSERVATION
+    detection: DetectionOptions = field(default_factory=DetectionOptions)
+    estimation: EstimatorOptions = field(default_factory=EstimatorOptions)
+    seed: int = 0
+    tip_feature: str | None = None
+    stereo: bool = True
+
+
+#: the widest association gate (px at full size), see Pipeline.gate
+MAX_GATE_PX = 150.0
+
+
+def auto_detect_scale(width: int, max_width: int = MAX_DETECT_WIDTH) -> float:
+    """Detection runs on the undistorted image scaled to at most ``max_width`` px wide
+    (1080x1920 recordings are detected at half size; smaller ones at full size)."""
+    return 1.0 if width <= max_width else max_width / float(width)
+
+
+class Pipeline:
+    """One frame at a time: undistort, detect, build the observation, estimate.
+
+    ``step(frame)`` returns (Estimate, Detection | None, Observation | None,
+    per-stage milliseconds). The detector is gated with the shaft edges
+    predicted from the previous estimate and the current joint readings.
+
+    Stereo (``ctx.stereo``): the right image is undistorted and detected too, gated
+    with the shaft predicted through the right camera (right_T_left . E, K2) and the
+    left image's gate widths, and its observation goes to the estimator as
+    ``right``; its (Detection, Observation) are kept in ``right`` (both None for a
+    left-only frame), the per-stage milliseconds are those of both images. A frame
+    whose right image is missing or corrupt is a left-only update, counted in
+    ``left_only``. (The learned detector runs each image through the net on its own:
+    one forward pass of both was slower, docs/decisions/stereo-detection.md.)
+    """
+
+    def __init__(self, ctx: TrackingContext, options: TrackOptions):
+        self.ctx = ctx
+        self.options = options
+        det = options.detection
+        self.scale = det.scale or auto_detect_scale(ctx.camera.width)
+        self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
+        self.stereo = bool(ctx.stereo)
+        self.detect_right = None if not self.stereo else (
+            ctx.right if self.scale == 1.0 else ctx.right.scaled(self.scale))
+        self.right = (None, None)     # the last frame's right (Detection, Observation)
+        self.left_only = 0            # stereo frames updated without their right image
+        cls = estimator_class(options.estimator)
+        self.needs_images = cls.uses_observations
+        kw = options.estimation.keywords(options.estimator)
+        self.detector = None
+        if self.needs_images:
+            # marker gates are tuned in detection pixels (an image <= 960 px wide); the
+            # estimators see full-size pixels
+            kw.update(markers=det.markers, gate_scale=1.0 / self.scale)
+            self.detector = make_detector(det.detector, **det.detector_keywords())
+        self.estimator = make_estimator(options.estimator, ctx, **kw)
+        self.last_E = ctx.handeye.copy()
+        self.last_std = None          # nothing known before the first estimate: widest gate
+        self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
+        self.rng = np.random.default_rng(options.seed)
+
+    def predicted_lines(self, frame: Frame, right: bool = False) -> np.ndarray | None:
+        """Shaft edges (2, 2) (rho, theta) from the last estimate and this frame's
+        readings, in the undistorted pixels of the (possibly scaled) detection image
+        (``right``: of the right image, through right_T_left . E and K2)."""
+        if not self.ctx.robot.shaft_features:
+            return None
+        feats, K = self._predicted_features(frame), self.detect_camera.K
+        if right:
+            feats, K = feats.transformed(self.ctx.right_T_left), self.detect_right.K
+        rho, theta, valid = shaft_lines(feats, K)
+        return np.stack([rho, theta], -1) if bool(valid) else None
+
+    def _predicted_features(self, frame: Frame):
+        """This frame's features in the camera frame of the last estimate, computed once
+        per (frame, estimate) for predicted_lines and gate."""
+        c = self._predicted
+        if c is None or c[0] is not frame or c[1] is not self.last_E:
+            c = self._predicted = (frame, self.last_E,
+                                   base_features(self.ctx.robot, frame.q).transformed(self.last_E))
+        return c[2]
+
+    def gate(self, frame: Frame):
+        """The association gates for this frame, widened with the estimate's uncertainty.
+
+        The predicted shaft moves in the image by about
+        s = f (|(std_bx, std_by)| / Z + |(std_wx, std_wy)|) px for the left (b, w)
+        standard deviations of the last estimate (Z: depth of the shaft point, f
+        in detection pixels); the offset gate is max(configured, 3 s), at most
+        ``MAX_GATE_PX``. Before the first estimate (nothing known yet) it is
+        MAX_GATE_PX. Why: docs/decisions/gate-follows-covariance.md.
+        """
+        if self.detector is None or not self.ctx.robot.shaft_features:
+            return None
+        base = self.detector.association
+        if base is None:
+            return None
+        std = self.last_std
+        if std is None:
+            widest = MAX_GATE_PX * self.scale
+        else:
+            if not np.all(np.isfinite(std)):
+                return None
+            z = self._predicted_features(frame).shaft_p0[0, 2]
+            f = self.detect_camera.K[0, 0]
+            s = f * (np.hypot(std[0], std[1]) / max(z, 1e-3) + np.hypot(std[3], std[4]))
+            widest = min(3.0 * s, MAX_GATE_PX * self.scale)
+        if widest <= base.max_offset:
+            return None
+        return dataclasses.replace(base, max_offset=float(widest))
+
+    def _image(self, image: np.ndarray, camera, lines, gate, ms: dict):
+        """Undistort, detect and observe one image; (Detection, Observation) in
+        full-size pixels; adds the stages' milliseconds to ``ms``."""
+        det = self.options.detection
+        t = time.perf_counter()
+        und = camera.undistort(image, self.scale)
+        ms["undistort"] = ms.get("undistort", 0.0) + 1e3 * (time.perf_counter() - t)
+        t = time.perf_counter()
+        detection = self.detector.detect(und, lines, gate)
+        ms["detect"] = ms.get("detect", 0.0) + 1e3 * (time.perf_counter() - t)
+        t = time.perf_counter()
+        observation = observe.make_observation(detection, self.options.observation, alpha=det.alpha,
+                                               beta=det.beta, use_markers=det.markers, rng=self.rng)
+        observation = observe.scale_observation(observation, 1.0 / self.scale)  # full-size pixels
+        detection = observe.scale_detection(detection, 1.0 / self.scale)
+        ms["observe"] = ms.get("observe", 0.0) + 1e3 * (time.perf_counter() - t)
+        return detection, observation
+
+    def step(self, frame: Frame):
+        ms = {}
+        detection = observation = None
+        self.right = (None, None)
+        if self.needs_images:
+            gate = self.gate(frame)
+            detection, observation = self._image(frame.image, self.ctx.camera, self.predicted_lines(frame),
+                                                 gate, ms)
+            if self.stereo and frame.image_right is not None:
+                self.right = self._image(frame.image_right, self.ctx.right,
+                                         self.predicted_lines(frame, right=True), gate, ms)
+            elif self.stereo:
+                self.left_only += 1
+        t = time.perf_counter()
+        estimate = (self.estimator.step(frame, observation, self.right[1]) if self.stereo
+                    else self.estimator.step(frame, observation))
+        ms["estimate"] = 1e3 * (time.perf_counter() - t)
+        self.last_E = estimate.E
+        self.last_std = None if estimate.std is None else np.asarray(estimate.std, float)
+        return estimate, detection, observation, ms
+
+
+def tip_point(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """The tool tip in the LEFT camera frame, E . tip(q), (3,) m (NaN if the robot has none)."""
+    feats = base_features(ctx.robot, q)
+    return np.full(3, np.nan) if feats.tip is None else np.asarray(feats.transformed(E).tip, float)
+
+
+def tip_pixel(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
+    """The tool tip projected into the RAW (distorted) left image, (2,) px (NaN if none/behind)."""
+    tip = tip_point(ctx, q, E)
+    if not tip[2] > 0:
+        return np.full(2, np.nan)
+    return ctx.camera.project_raw(tip)

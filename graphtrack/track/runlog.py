@@ -1,0 +1,107 @@
+"""What one tracking run collects as it reads a recording: per tracked frame its
+row, tip pixel and per-stage milliseconds; the frames skipped and why; the summary
+(timings, frames/s) that metrics.json reports.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from graphtrack.errors import FrameError
+from graphtrack.io.frame import Frame
+from graphtrack.io.recording import Recording
+
+STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
+
+
+def warn(message: str, quiet: bool) -> None:
+    if not quiet:
+        print(f"graphtrack: {message}", file=sys.stderr)
+
+
+def untrackable(frame: Frame, n_joints: int, last_stamp: float | None) -> FrameError | None:
+    """Why a decoded frame cannot be tracked (a FrameError with its skip reason), or None:
+    a joint vector of another length or with NaN, or a stamp not after the last tracked one."""
+    if len(frame.q) != n_joints or not np.all(np.isfinite(frame.q)):
+        return FrameError(frame.index, "joint_count" if len(frame.q) != n_joints else "nan_joints",
+                          f"joint vector has {len(frame.q)} values (finite: {bool(np.all(np.isfinite(frame.q)))}), "
+                          f"expected {n_joints}")
+    if not (np.isfinite(frame.stamp) and (last_stamp is None or frame.stamp > last_stamp)):
+        return FrameError(frame.index, "stamp_order",
+                          f"stamp {frame.stamp!r} is not after the previous frame's {last_stamp!r}")
+    return None
+
+
+class SkipCounter(Counter):
+    """Skipped frames per reason, and the first message of each (metrics.json ``skip_examples``)."""
+
+    def __init__(self):
+        super().__init__()
+        self.examples: dict[str, str] = {}
+
+    def skip(self, error: FrameError, quiet: bool) -> None:
+        """Count a skipped frame, keep its reason's first message, warn unless quiet."""
+        self[error.reason] += 1
+        self.examples.setdefault(error.reason, str(error))
+        warn(f"warning: skipping {error}", quiet)
+
+
+@dataclass
+class RunLog:
+    """What one tracking run has collected so far: per tracked frame its index, tip
+    pixel and (index, stamp, q, total ms, E) row; per-stage and per-frame milliseconds;
+    the skip reasons; frames read (tracked or skipped)."""
+
+    frames: list = field(default_factory=list)
+    tips: list = field(default_factory=list)
+    rows: list = field(default_factory=list)
+    stage_ms: dict = field(default_factory=lambda: {s: [] for s in STAGES})
+    frame_ms: list = field(default_factory=list)
+    skipped: SkipCounter = field(default_factory=SkipCounter)
+    read: int = 0
+    informative: list = field(default_factory=list)   # per tracked frame: a shaft or marker detected
+
+    @property
+    def last_stamp(self) -> float | None:
+        return self.rows[-1][1] if self.rows else None
+
+    def add(self, frame: Frame, E: np.ndarray, tip: np.ndarray, ms: dict, total_ms: float,
+            frame_ms: float) -> None:
+        for s in STAGES:
+            self.stage_ms[s].append(ms.get(s, 0.0))
+        self.frame_ms.append(frame_ms)
+        self.frames.append(frame.index)
+        self.tips.append(tip)
+        self.rows.append((frame.index, frame.stamp, frame.q, total_ms, E))
+
+    def summary(self, wall: float) -> dict:
+        """Frame counts, median ms per stage, fps over the wall time and the steady state:
+        every per-frame cost (decode ... write) of frames 1.. (frame 0 also pays the
+        start-up: the bag's joint pass, first use of the detector), no finish()."""
+        out = {"timing_ms_median": {s: float(np.median(v)) if v else 0.0 for s, v in self.stage_ms.items()},
+               "fps": float(len(self.frames) / wall) if wall > 0 else float("nan")}
+        steady = self.frame_ms[1:] if len(self.frame_ms) > 1 else self.frame_ms
+        out["frame_ms_mean"] = float(np.mean(steady)) if steady else float("nan")
+        out["fps_steady"] = float(1e3 / np.mean(steady)) if steady else float("nan")
+        out["wall_s"] = float(wall)
+        return out
+
+
+def read_frames(rec: Recording, max_frames: int | None, run: RunLog, bar):
+    """(item, decode ms, start time) for up to ``max_frames`` recording items, counted in run.read."""
+    it = iter(rec.frames())
+    while max_frames is None or run.read < max_frames:
+        t0 = time.perf_counter()
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        run.read += 1
+        if bar is not None:
+            bar.update(1)
+        yield item, 1e3 * (time.perf_counter() - t0), t0
+
