@@ -16,7 +16,8 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   error never leaves it) is rejected.
 - After a gap (an informative frame after ``gap`` or more frames without one)
   on which the prediction explains little (misfit above the monitor's
-  threshold: the tool moved while unseen) nothing is locked: x_c is adopted when
+  threshold, also at the search's coarse pixel sigma ``COARSE_SIGMA``: the tool
+  moved while unseen) nothing is locked: x_c is adopted when
   it explains this frame better than the prediction by more than ``margin``
   nats and explains it (its own misfit under the threshold). A prediction that still fits keeps its lock (the monitor watches it).
 - When the divergence monitor fires, a lock exists that may be right (a partial
@@ -46,8 +47,11 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   the rejected frames' misfits and the candidate test above replaces it. While
   locked, a candidate must also pass the lock's covariance gate
   (:meth:`SearchInit.near_lock`: E is nearly constant, so a well-explained lock
-  does not jump 10 mm to an occluder's edges); a lock unused for ``gap`` frames
-  expires, and the next frame is treated as after a gap.
+  does not jump 10 mm to an occluder's edges; the gate never closes below
+  ``LOCK_FLOOR`` of the prior's spread, so a lock can still be corrected by a
+  few mm). After ``gap`` consecutive outlier frames the gate opens (a lock that
+  explains nothing for that long may be the wrong one); the candidate test
+  still decides.
 - Prior guard: an estimate outside the hand-eye prior's region (as the
   ``prior_gate`` above) has run away (the lumped error never leaves it): the
   search is run around the prior's centre and its mode adopted at once.
@@ -59,13 +63,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from graphtrack.estimate.divergence import DivergenceMonitor, misfit
-from graphtrack.estimate.startup import Scorer, SearchResult, global_search
+from graphtrack.estimate.startup import SIGMAS, Scorer, SearchResult, global_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 
 #: chi^2 with 6 degrees of freedom, 99.9 % point: the hand-eye prior's extent
 PRIOR_GATE = 22.46
 #: a lock's covariance gate is never tighter than this fraction of the search spread
 LOCK_FLOOR = 0.1
+#: px, the pixel sigma at which a prediction after a gap is judged (the search's second stage)
+COARSE_SIGMA = SIGMAS[1]
 
 
 def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
@@ -117,6 +123,7 @@ class SearchInit:
         self.rejections = 0          # outlier frames so far
         self.guarded = 0             # prior-guard re-initialisations so far
         self.unused = 0              # frames since the estimator last used a frame
+        self.reject_run = 0          # consecutive outlier frames
         self.motion_cov = None if motion_cov is None else np.asarray(motion_cov, float)
 
     def _x(self, E: np.ndarray) -> np.ndarray:
@@ -127,7 +134,7 @@ class SearchInit:
             self.monitor.reset()
         self.candidate = None
         self.rejected = False
-        self.unused = self.lock_run = 0
+        self.unused = self.lock_run = self.reject_run = 0
         self.count += 1
         self.result = res
         return bw_to_matrix(res.x) @ self.E_ref
@@ -149,7 +156,7 @@ class SearchInit:
         c.frames += 1
         if c.frames < self.confirm:
             return None
-        threshold = self.monitor.threshold if self.monitor is not None else 0.5
+        threshold = self.threshold
         still_lost = c.current / c.frames > threshold
         if still_lost and c.llr > self.confirm * self.margin and c.misfits / c.frames < threshold \
                 and ll_c - ll_cur > self.margin:
@@ -188,34 +195,52 @@ class SearchInit:
         ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
         m_cur = misfit(ll_cur, floor)
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
-        threshold = self.monitor.threshold if self.monitor is not None else 0.5
-        after_gap = self.since >= self.gap and not m_cur <= threshold   # the prediction explains nothing
+        after_gap = self.since >= self.gap and not m_cur <= self.threshold \
+            and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
         self.since = 0
-        if self.locked and self.unused > self.gap:  # a lock unused for a gap has expired
-            self.lock_run = 0
-            after_gap = not m_cur <= threshold
-        if self.innovation_gate and self.locked and not after_gap and m_cur > threshold:
-            self.rejected = True                    # an outlier frame on a good lock (module doc)
-            self.rejections += 1
-        else:
-            self.unused = 0
-            if np.isfinite(m_cur):
-                self.lock_run = self.lock_run + 1 if m_cur <= self.lock_threshold else 0
+        self._gate(m_cur, after_gap)
         if self.candidate is not None and not after_gap:
             return self._test(q, observation, ll_cur, m_cur)
         if not (after_gap or diverged):
             return None
         res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
-        if np.sum((res.x / self.spread) ** 2) > self.prior_gate:
+        if self.outside(res.x):
             return None
         if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test,
             # for a mode that explains the frame (misfit under the threshold)
-            ok = res.loglik > ll_cur + self.margin and misfit(res.loglik, floor) <= threshold
+            ok = res.loglik > ll_cur + self.margin and misfit(res.loglik, floor) <= self.threshold
             return self._adopt(res) if ok else None
-        if self.locked and not self.near_lock(res.x, x_cur, cov):
+        if self.locked and self.reject_run < self.gap and not self.near_lock(res.x, x_cur, cov):
             return None   # the lock's covariance gate: E does not jump
         self.candidate = _Candidate(res)
         return self._test(q, observation, ll_cur, m_cur)
+
+    @property
+    def threshold(self) -> float:
+        """The misfit above which a frame is not explained (the monitor's threshold)."""
+        return self.monitor.threshold if self.monitor is not None else 0.5
+
+    def _gate(self, m_cur: float, after_gap: bool) -> None:
+        """The innovation gate (module doc): mark this frame an outlier frame, or count it
+        towards the lock (explained: misfit <= lock_threshold; unexplained, above the
+        threshold, ends a lock that is not yet established)."""
+        if self.innovation_gate and self.locked and not after_gap and m_cur > self.threshold:
+            self.rejected = True
+            self.rejections += 1
+            self.reject_run += 1
+            return
+        self.unused = self.reject_run = 0
+        if np.isfinite(m_cur) and m_cur <= self.lock_threshold:
+            self.lock_run += 1
+        elif not m_cur <= self.threshold:
+            self.lock_run = 0
+
+    def _coarse_fit(self, q, observation, x: np.ndarray) -> bool:
+        """The prediction x explains the frame at the search's coarse pixel sigma
+        (``COARSE_SIGMA`` px): after a gap, a prediction a few px off (the tool moved
+        a little while unseen) is not lost; the estimator converges from it."""
+        ll, floor = self.scorer.with_floor(q, observation, x, sigma=COARSE_SIGMA)
+        return bool(misfit(ll, floor) <= self.threshold)
 
     def near_lock(self, x: np.ndarray, x_cur: np.ndarray, cov: np.ndarray | None) -> bool:
         """The covariance gate of a lock: (x - x_cur)^T C^-1 (x - x_cur) <= ``prior_gate``

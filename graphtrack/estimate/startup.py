@@ -110,13 +110,14 @@ class Scorer:
         h = project(self._frame_geometry(q), self.K, np.atleast_2d(np.asarray(x, float)))
         return self.loglik(h, observation, sigma)
 
-    def with_floor(self, q, observation, x: np.ndarray, shift: float = 0.05) -> tuple[float, float]:
+    def with_floor(self, q, observation, x: np.ndarray, shift: float = 0.05,
+                   sigma: float | None = None) -> tuple[float, float]:
         """(log P(z | E(x)), :meth:`floor` at x) in one projection and one likelihood call
-        (the divergence monitor's per-frame cost)."""
+        (the divergence monitor's per-frame cost), at pixel sigma ``sigma`` (None: the configured)."""
         x = np.asarray(x, float)
         X = np.stack([x, x])
         X[1, 0] += shift
-        ll = self(q, observation, X)
+        ll = self(q, observation, X, sigma)
         return float(ll[0]), float(ll[1])
 
     def floor(self, q, observation, x: np.ndarray | None = None, shift: float = 0.05) -> float:
