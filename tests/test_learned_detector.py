@@ -48,6 +48,21 @@ def test_traced_net_computes_what_the_eager_net_computes():
                 np.testing.assert_allclose(traced(x).numpy(), ref.numpy(), rtol=0, atol=1e-5)
 
 
+def test_detector_falls_back_to_the_eager_net_when_tracing_fails(monkeypatch):
+    from graphtrack.detect import learned
+
+    def refuse(*a, **k):
+        raise RuntimeError("no tracing here")
+
+    monkeypatch.setattr(learned.torch.jit, "trace", refuse)
+    monkeypatch.setattr(learned, "_TRACED", {})
+    det = learned.LearnedDetector()
+    img = np.zeros((64, 96, 3), np.uint8)
+    img[:, 40:56] = 200
+    L, J = det.heatmaps(img)
+    assert det._infer is det.net and L.shape == (16, 24) and J.shape == (16, 24)
+
+
 def test_extract_recovers_synthetic_segment():
     import cv2
 

@@ -266,7 +266,7 @@ def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
         e0, e1 = c + float(tq.min()) * u, c + float(tq.max()) * u
         if len(peaks):
             e0, e1 = _snap(e0, c, u, peaks, cfg), _snap(e1, c, u, peaks, cfg)
-        out.append(np.r_[e0, e1])
+        out.append(np.concatenate((e0, e1)))
         support.append(float(w[run].sum()))
     if not out:
         return empty
