@@ -74,13 +74,17 @@ def test_an_occluder_frame_on_a_good_lock_is_predicted_through(name):
         policy.innovation_gate = gate
         assert policy.locked
         lock = est.E if name == "pf" else est.last.matrix()
-        poses = []
+        poses, flags = [], []
         for t in range(15, 35):
             q, fr = _frame(world, t)
-            poses.append(est.step(fr, _obs(world, q, occluder, t)).E)
+            e = est.step(fr, _obs(world, q, occluder, t))
+            poses.append(e.E)
+            flags.append(e.extra["outlier"])
         moved[gate] = np.linalg.norm(matrix_to_bw(poses[-1] @ invert(lock))[:3])
         if gate:
-            assert policy.rejections >= 15
+            assert policy.rejections >= 15 and sum(flags) == policy.rejections   # trajectory.csv's outlier
+        else:
+            assert sum(flags) == 0
     assert moved[True] < 1.5e-3, moved
     assert moved[False] > 2 * moved[True], moved
 

@@ -31,6 +31,38 @@ def test_forward_shapes():
     assert sum(p.numel() for p in net.parameters()) < 100_000
 
 
+def test_traced_net_computes_what_the_eager_net_computes():
+    """The detector runs a torch.jit trace of the fused net (speed); on any input size
+    (the trace was made at another) its maps equal the eager module's."""
+    from graphtrack.detect.learned import DEFAULT_WEIGHTS, load_weights, traced_net
+
+    net = load_weights(DEFAULT_WEIGHTS)
+    traced = traced_net(net, ("test", 0), (135, 240))
+    assert traced is not None
+    g = torch.Generator().manual_seed(0)
+    with torch.inference_mode():
+        for h, w in ((135, 240), (135, 240), (68, 120), (33, 47), (270, 480)):
+            x = torch.rand(1, 3, h, w, generator=g)
+            ref = net(x)
+            for _ in range(3):   # the profiling executor optimises after its first runs
+                np.testing.assert_allclose(traced(x).numpy(), ref.numpy(), rtol=0, atol=1e-5)
+
+
+def test_detector_falls_back_to_the_eager_net_when_tracing_fails(monkeypatch):
+    from graphtrack.detect import learned
+
+    def refuse(*a, **k):
+        raise RuntimeError("no tracing here")
+
+    monkeypatch.setattr(learned.torch.jit, "trace", refuse)
+    monkeypatch.setattr(learned, "_TRACED", {})
+    det = learned.LearnedDetector()
+    img = np.zeros((64, 96, 3), np.uint8)
+    img[:, 40:56] = 200
+    L, J = det.heatmaps(img)
+    assert det._infer is det.net and L.shape == (16, 24) and J.shape == (16, 24)
+
+
 def test_extract_recovers_synthetic_segment():
     import cv2
 

@@ -44,6 +44,7 @@ docs/decisions/subpixel-edges.md.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -106,6 +107,28 @@ def load_weights(path: str | Path | None = None):
     return net.eval().fused()
 
 
+#: traced inference nets per weights file (path, mtime, size): tracing costs 0.2-0.6 s once
+_TRACED: dict = {}
+
+
+def traced_net(net, key, shape: tuple[int, int]):
+    """The fused ``net`` traced by torch.jit and frozen, cached under ``key``; None when
+    tracing fails (the caller keeps the eager net).
+
+    The same conv kernels without the modules' Python overhead: 4.4 vs 5.9 ms per
+    135x240 image on one core, outputs bit-identical to the eager net
+    (tests/test_learned_detector.py). The decoder's sizes are traced as operations, so
+    the trace serves any input size."""
+    if key not in _TRACED:
+        try:
+            with warnings.catch_warnings(), torch.inference_mode():
+                warnings.simplefilter("ignore")   # torch.jit is deprecated, still supported
+                _TRACED[key] = torch.jit.freeze(torch.jit.trace(net, torch.zeros(1, 3, *shape)))
+        except Exception:  # noqa: BLE001 - any tracing failure: run the eager net
+            _TRACED[key] = None
+    return _TRACED[key]
+
+
 #: the largest channel counts a weights file may ask for (the shipped net: width 16, stem 8)
 MAX_WIDTH, MAX_STEM = 256, 128
 
@@ -146,10 +169,11 @@ def _grow_and_fit(P: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, cf
         return None
     d /= n
     nrm = np.array([-d[1], d[0]])
-    r = (P - a) @ nrm
-    t = (P - a) @ d
+    Pa = P - a
+    r = Pa @ nrm
+    t = Pa @ d
     sel = (np.abs(r) <= cfg.fit_band) & (t >= -cfg.max_gap) & (t <= n + cfg.max_gap)
-    if sel.sum() < cfg.min_support:
+    if np.count_nonzero(sel) < cfg.min_support:
         return None
     c, u = _tls(P[sel], w[sel])
     # grow along the fitted line: all pixels in the band, split at gaps,
@@ -159,9 +183,9 @@ def _grow_and_fit(P: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, cf
     tq = X[band] @ u
     order = np.argsort(tq)
     ts = tq[order]
-    gaps = np.flatnonzero(np.diff(ts) > cfg.max_gap)
-    starts = np.r_[0, gaps + 1]
-    ends = np.r_[gaps, len(ts) - 1]
+    gaps = np.flatnonzero(ts[1:] - ts[:-1] > cfg.max_gap)
+    starts = np.concatenate(([0], gaps + 1))
+    ends = np.concatenate((gaps, [len(ts) - 1]))
     tc = (0.5 * (a + b) - c) @ u
     hold = np.flatnonzero((ts[starts] <= tc) & (ts[ends] >= tc))
     k = int(hold[0]) if len(hold) else int(np.argmax(ts[ends] - ts[starts]))
@@ -242,7 +266,7 @@ def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
         e0, e1 = c + float(tq.min()) * u, c + float(tq.max()) * u
         if len(peaks):
             e0, e1 = _snap(e0, c, u, peaks, cfg), _snap(e1, c, u, peaks, cfg)
-        out.append(np.r_[e0, e1])
+        out.append(np.concatenate((e0, e1)))
         support.append(float(w[run].sum()))
     if not out:
         return empty
@@ -269,6 +293,10 @@ class LearnedDetector:
                  marker_config: MarkerConfig | None = None, min_contrast: float = 2.0,
                  threads: int | None = None, subpixel: bool | SubpixelConfig = True):
         self.net = load_weights(weights)
+        path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        st = path.stat()
+        self._net_key = (str(path.resolve()), st.st_mtime_ns, st.st_size)
+        self._infer = None            # the traced net, made at the first frame
         self.scale = float(scale)
         self.markers = markers
         self.extract = extract or ExtractConfig()
@@ -297,8 +325,10 @@ class LearnedDetector:
         if float(small.std()) < self.min_contrast:
             return None
         x = torch.from_numpy(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).permute(2, 0, 1)[None].float() / 255.0
+        if self._infer is None:
+            self._infer = traced_net(self.net, self._net_key, small.shape[:2]) or self.net
         with torch.inference_mode():
-            y = torch.sigmoid(self.net(x))[0].numpy()
+            y = torch.sigmoid(self._infer(x))[0].numpy()
         return y[0], y[1]
 
     def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None,

@@ -187,17 +187,18 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
     if not ok.any():
         return segs
     img = np.asarray(image)
-    if img.dtype != np.uint8:
-        img = np.clip(img, 0, 255).astype(np.uint8)
-    gray = cv2.cvtColor(np.ascontiguousarray(img[:, :, :3]), cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
-    h, w = gray.shape[:2]
+    h, w = img.shape[:2]
     pad = cfg.search + 3.0 * max(cfg.blur, 0.5) + 2.0
     xs, ys = segs[ok][:, 0::2], segs[ok][:, 1::2]
     x0, y0 = max(int(np.floor(xs.min() - pad)), 0), max(int(np.floor(ys.min() - pad)), 0)
     x1, y1 = min(int(np.ceil(xs.max() + pad)) + 1, w), min(int(np.ceil(ys.max() + pad)) + 1, h)
     if x1 - x0 < 3 or y1 - y0 < 3:
         return segs
-    gx, gy = edge_gradient(gray, (x0, y0, x1, y1), cfg.blur)
+    img = img[y0:y1, x0:x1]          # grey levels are per pixel: convert only the box
+    if img.dtype != np.uint8:
+        img = np.clip(img, 0, 255).astype(np.uint8)
+    gray = cv2.cvtColor(np.ascontiguousarray(img[:, :, :3]), cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img
+    gx, gy = edge_gradient(gray, (0, 0, x1 - x0, y1 - y0), cfg.blur)
     idx = np.flatnonzero(ok)
     mid = (segs[:, :2] + segs[:, 2:]) / 2
     # the shaft's two edges: normals point into the shaft (toward the other edge's

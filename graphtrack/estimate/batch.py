@@ -33,6 +33,7 @@ import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
+from graphtrack.estimate.options import MOTION_SIGMA_B, MOTION_SIGMA_W, PRIOR_SIGMA_B, PRIOR_SIGMA_W
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.lm import levenberg_marquardt
@@ -62,8 +63,8 @@ class BatchEstimator:
     extra_columns = STD_COLUMNS + ("kept_online",)
 
     def __init__(self, ctx: TrackingContext, markers: bool = True,
-                 prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
-                 motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
+                 prior_sigma_b: float = PRIOR_SIGMA_B, prior_sigma_w: float = PRIOR_SIGMA_W,
+                 motion_sigma_b: float = MOTION_SIGMA_B, motion_sigma_w: float = MOTION_SIGMA_W,
                  max_iterations: int = 30, relative_tolerance: float = 1e-3,
                  covariance: bool = True, provisional: str = "smoother", fps: float = 30.0, **options):
         self.ctx = ctx

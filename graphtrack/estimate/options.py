@@ -15,6 +15,13 @@ LAG_S = 1.0           #: fixed-lag smoother: lag (s)
 SMOOTHER = "isam2"    #: fixed-lag smoother: gtsam IncrementalFixedLagSmoother ("isam2") or Batch ("batch")
 SMOOTHER_KINDS = ("isam2", "batch")
 SEARCH = True         #: pf and smoother: global start-up search and re-initialisation (estimate/reinit.py)
+#: the motion model of E shared by pf, smoother and batch: a random walk of the left (b, w)
+#: per frame, MOTION_SIGMA_B m and MOTION_SIGMA_W rad (docs/methods/estimators.md)
+MOTION_SIGMA_B = 2.5e-5
+MOTION_SIGMA_W = 1e-4
+#: the hand-eye prior of the smoother and batch: left (b, w) stds, m and rad
+PRIOR_SIGMA_B = 5e-3
+PRIOR_SIGMA_W = 0.035
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ import numpy as np
 
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
-from graphtrack.estimate.options import PARTICLES, SEARCH
+from graphtrack.estimate.options import MOTION_SIGMA_B, MOTION_SIGMA_W, PARTICLES, SEARCH
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
@@ -60,11 +60,11 @@ class ParticleFilter:
     stochastic = True   #: the estimate depends on ``seed`` (resampling): studies repeat it
     uses_observations = True
     supported_observations = om.OBSERVATION_MODELS
-    extra_columns = STD_COLUMNS + ("ess",)
+    extra_columns = STD_COLUMNS + ("ess", "outlier")
 
     def __init__(self, ctx: TrackingContext,
                  particles: int = PARTICLES, seed: int = 0, markers: bool = True, *,
-                 motion_std_b: float = 2.5e-5, motion_std_w: float = 1e-4,
+                 motion_std_b: float = MOTION_SIGMA_B, motion_std_w: float = MOTION_SIGMA_W,
                  init_std_b: float = 4e-3, init_std_w: float = 3e-2,
                  resample_threshold: float = 0.5, roughening: float = 0.5,
                  gamma_rho: float = om.GAMMA_RHO, gamma_theta: float = om.GAMMA_THETA,
@@ -245,7 +245,7 @@ class ParticleFilter:
         cov = self.cov = (dx * w[:, None]).T @ dx
         est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,
                        extra={**dict(zip(STD_COLUMNS, map(float, np.sqrt(np.diag(cov))))),
-                              "ess": ess})
+                              "ess": ess, "outlier": float(rejected)})
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est

@@ -36,7 +36,8 @@ import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
-from graphtrack.estimate.options import LAG_S, SEARCH, SMOOTHER
+from graphtrack.estimate.options import (LAG_S, MOTION_SIGMA_B, MOTION_SIGMA_W, PRIOR_SIGMA_B, PRIOR_SIGMA_W,
+                                         SEARCH, SMOOTHER)
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
@@ -68,12 +69,12 @@ class FixedLagSmootherEstimator:
     uses_observations = True
     stochastic = False
     supported_observations = OBSERVATION_MODELS
-    extra_columns = STD_COLUMNS + ("smoother_ms",)
+    extra_columns = STD_COLUMNS + ("smoother_ms", "outlier")
 
     def __init__(self, ctx: TrackingContext, lag: float = LAG_S,
                  smoother: str = SMOOTHER, markers: bool = True,
-                 prior_sigma_b: float = 5e-3, prior_sigma_w: float = 0.035,
-                 motion_sigma_b: float = 2.5e-5, motion_sigma_w: float = 1e-4,
+                 prior_sigma_b: float = PRIOR_SIGMA_B, prior_sigma_w: float = PRIOR_SIGMA_W,
+                 motion_sigma_b: float = MOTION_SIGMA_B, motion_sigma_w: float = MOTION_SIGMA_W,
                  iterations: int = 1, converge_tol: float = 1e-4,
                  relinearize_threshold: float = 1e-2, settled_relinearize_threshold: float = 2e-2,
                  settle: float = 2.0, fps: float = 30.0,
@@ -304,6 +305,7 @@ class FixedLagSmootherEstimator:
         self.timings_ms.append(ms)
         extra = estimate_extra(cov)
         extra["smoother_ms"] = ms
+        extra["outlier"] = float(self.reinit is not None and self.reinit.rejected)
         std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
         return Estimate(pose.matrix(), std, cov, extra)
 

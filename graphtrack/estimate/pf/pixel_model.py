@@ -21,6 +21,9 @@ import numpy as np
 PIXEL_SIGMA = 2.0      # px
 PIXEL_OUTLIER_SIGMAS = 3.0
 PIXEL_WEIGHT = 1.0
+#: particles per block of _floored_sq_sum: a (128, S) float32 block stays in the L2
+#: cache through its four passes (0.45 -> 0.32 ms per 1000 particles x ~600 pixels, one core)
+ROW_BLOCK = 128
 
 
 def pixel_loglik(rho: np.ndarray, theta: np.ndarray, pixels: np.ndarray,
@@ -116,9 +119,9 @@ def _floored_sq_sum(A: np.ndarray, pc: np.ndarray, w: np.ndarray, groups: list,
     centred pixels. One product A . B with B (3L, S) block-sparse: column
     segment (group g, edge j) holds [x, y, 1] of g's pixels in rows 3j..3j+2,
     so every needed residual comes out of a single GEMM; the segments of a
-    group are then reduced by min in place. Large intermediates live in
-    reused buffers: a fresh (n, S) array costs more in page faults than the
-    arithmetic.
+    group are then reduced by min in place, ``ROW_BLOCK`` particles at a time.
+    Large intermediates live in reused buffers: a fresh (n, S) array costs more
+    in page faults than the arithmetic.
     """
     n = A.shape[0]
     segs = [(j, cols) for edges, cols in groups if len(cols) for j in edges]
@@ -138,18 +141,22 @@ def _floored_sq_sum(A: np.ndarray, pc: np.ndarray, w: np.ndarray, groups: list,
             B[3 * j + 1, o:o + len(cols)] = pc[cols, 1]
             B[3 * j + 2, o:o + len(cols)] = 1.0
             o += len(cols)
-    R = _buffer(buf, "R", n * S).reshape(n, S)
-    np.matmul(A, B, out=R)
-    with np.errstate(over="ignore"):  # absurd pixels overflow float32 to inf: floored below
-        np.square(R, out=R)
-    for o, m, k in starts:  # nearer edge: min over the group's segments, into its first
-        for e in range(1, k):
-            np.minimum(R[:, o:o + m], R[:, o + e * m:o + (e + 1) * m], out=R[:, o:o + m])
     cap = buf.get("cap")
     if cap is None or len(cap) < S or cap[0] != np.float32(floor):
         cap = buf["cap"] = np.full(max(S, 1024), floor, dtype=np.float32)
-    np.minimum(R, cap[:S], out=R)  # an array operand: a scalar one is not vectorised (~5x slower)
-    return (R @ wt).astype(np.float64)
+    out = np.empty(n, dtype=np.float32)
+    Rb = _buffer(buf, "R", min(n, ROW_BLOCK) * S).reshape(-1, S)
+    for r0 in range(0, n, ROW_BLOCK):   # blocks of particles: R stays in the cache
+        R = Rb[:min(n, r0 + ROW_BLOCK) - r0]
+        np.matmul(A[r0:r0 + len(R)], B, out=R)
+        with np.errstate(over="ignore"):  # absurd pixels overflow float32 to inf: floored below
+            np.square(R, out=R)
+        for o, m, k in starts:  # nearer edge: min over the group's segments, into its first
+            for e in range(1, k):
+                np.minimum(R[:, o:o + m], R[:, o + e * m:o + (e + 1) * m], out=R[:, o:o + m])
+        np.minimum(R, cap[:S], out=R)  # an array operand: a scalar one is not vectorised (~5x slower)
+        np.matmul(R, wt, out=out[r0:r0 + len(R)])
+    return out.astype(np.float64)
 
 
 def _buffer(buf: dict, key: str, size: int) -> np.ndarray:
