@@ -19,7 +19,8 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   threshold, also at the search's coarse pixel sigma ``COARSE_SIGMA``: the tool
   moved while unseen) nothing is locked: x_c is adopted when
   it explains this frame better than the prediction by more than ``margin``
-  nats and explains it (its own misfit under the threshold). A prediction that still fits keeps its lock (the monitor watches it).
+  nats and explains it (its own misfit under the threshold). A prediction that
+  still fits keeps its lock (the monitor watches it).
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -37,9 +38,11 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   on the occluder's edges wins that frame; as the tool moves with its readings
   and the occluder does not, such a candidate loses the following frames. A
   correct lock is kept; a wrong or lost one is replaced ``confirm`` frames later.
-- Innovation gate: while *locked* (the last ``lock_frames`` frames the
-  estimator used were explained, misfit <= ``lock_threshold``), a frame whose misfit at the
-  current estimate exceeds the monitor's threshold is an outlier frame
+- Innovation gate: while *locked* (``lock_frames`` consecutive frames the
+  estimator used were explained, misfit <= ``lock_threshold``; a frame with a
+  misfit between that and the threshold neither extends nor ends a lock), a
+  frame whose misfit at the current estimate exceeds the monitor's threshold
+  is an outlier frame
   (``rejected``): the estimator predicts through it without its detections.
   An occluder (a second instrument, a tissue fold) that covers the shaft shows
   edges near, but not on, the prediction; used, they pull the estimate off by
