@@ -229,8 +229,9 @@ EXIT2 = [
 ]
 
 
-@pytest.mark.parametrize("case", EXIT2, ids=[c[0] for c in EXIT2])
-def test_catalogue_exit2(case, base, tmp_path, capsys):
+def check_exit2(case, base, tmp_path, capsys):
+    """Run one (name, form, mutate, extra args, message pattern) case through the CLI: exit 2,
+    one error line matching the pattern, and no half-written output."""
     name, form, mutate, extra, pattern = case
     rec = copy(base, form, tmp_path)
     mutate(rec)
@@ -240,6 +241,11 @@ def test_catalogue_exit2(case, base, tmp_path, capsys):
     assert code == 2, err
     assert re.search(pattern, line), line
     assert_outputs_sane(out)
+
+
+@pytest.mark.parametrize("case", EXIT2, ids=[c[0] for c in EXIT2])
+def test_catalogue_exit2(case, base, tmp_path, capsys):
+    check_exit2(case, base, tmp_path, capsys)
 
 
 def test_nothing_tracked_writes_strict_metrics(base, tmp_path, capsys):

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import pytest
 
-from test_hardening_catalogue import (REPO, assert_outputs_sane, base, copy, edit_joints,  # noqa: F401
+from test_hardening_catalogue import (REPO, assert_outputs_sane, base, check_exit2, copy, edit_joints,  # noqa: F401
                                       edit_yaml, error_line, track)
 
 
@@ -123,15 +123,7 @@ EXIT2 = [
 
 @pytest.mark.parametrize("case", EXIT2, ids=[c[0] for c in EXIT2])
 def test_extra_exit2(case, base, tmp_path, capsys):  # noqa: F811
-    name, form, mutate, extra, pattern = case
-    rec = copy(base, form, tmp_path)
-    mutate(rec)
-    out = tmp_path / "out"
-    code, err = track(rec, out, capsys, *extra)
-    line = error_line(err)
-    assert code == 2, err
-    assert re.search(pattern, line), line
-    assert_outputs_sane(out)
+    check_exit2(case, base, tmp_path, capsys)
 
 
 def test_out_is_a_file(base, tmp_path, capsys):  # noqa: F811
