@@ -17,6 +17,8 @@ One gtsam.Pose3 E_t per frame (key x_t; y_t once settled). Factors:
 Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
 (shaft factors, then with markers; markers-only frames held back up to
 ``start_up_wait``), or initialised by the global search (:mod:`graphtrack.estimate.reinit`).
+A re-initialisation by that policy restarts the window: the frame is started up
+as the first one. An outlier frame of its innovation gate adds only the motion factor.
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
 t: x_t right after frame t's update (filtered); cov/std: its marginal in the left
 (b, w) perturbation. iSAM2 relinearises at ``relinearize_threshold`` (rad / m of
