@@ -342,17 +342,24 @@ def test_header_only_trajectory(tmp_path):
     assert len(t["frame"]) == 0 and t["E"].shape == (0, 4, 4)
 
 
+def track_with_file_limit(rec, out, limit: int, *extra) -> subprocess.CompletedProcess:
+    """``graphtrack track rec --out out --quiet *extra`` in a process whose writes past
+    ``limit`` bytes per file fail (RLIMIT_FSIZE: EFBIG, as a full disk fails them)."""
+    args = ["track", str(rec), "--out", str(out), "--quiet", *extra]
+    code = ("import resource, signal, sys\n"
+            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+            f"resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, {limit}))\n"
+            "from graphtrack.cli import main\n"
+            f"sys.exit(main({args!r}))\n")
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+
+
 @pytest.mark.slow
 def test_full_disk_one_line_and_complete_lines(base, tmp_path):
     """RLIMIT_FSIZE makes every write past the limit fail (EFBIG), as a full disk does."""
     out = tmp_path / "out"
-    code = ("import resource, signal, sys\n"
-            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
-            "resource.setrlimit(resource.RLIMIT_FSIZE, (1500, 1500))\n"
-            "from graphtrack.cli import main\n"
-            f"sys.exit(main(['track', {str(base / 'folder')!r}, '--out', {str(out)!r}, '--quiet']))\n")
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    p = track_with_file_limit(base / "folder", out, 1500)
     assert p.returncode == 2, p.stderr
     line = error_line(p.stderr)
     assert re.search(r"trajectory\.(csv|tum): cannot write", line), line

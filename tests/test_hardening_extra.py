@@ -18,7 +18,7 @@ import cv2
 import pytest
 
 from test_hardening_catalogue import (REPO, assert_outputs_sane, base, check_exit2, copy, edit_joints,  # noqa: F401
-                                      edit_yaml, error_line, track)
+                                      edit_yaml, error_line, track, track_with_file_limit)
 
 
 @pytest.fixture(scope="module")
@@ -196,13 +196,7 @@ def test_full_disk_at_overlay_video_is_one_line(base, tmp_path):  # noqa: F811
     """RLIMIT_FSIZE lets the small text files through but not overlay.mp4: OpenCV's writer
     fails silently, the run must not."""
     out = tmp_path / "out"
-    code = ("import resource, signal, sys\n"
-            "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
-            "resource.setrlimit(resource.RLIMIT_FSIZE, (20000, 20000))\n"
-            "from graphtrack.cli import main\n"
-            f"sys.exit(main(['track', {str(base / 'folder')!r}, '--out', {str(out)!r}, '--quiet', '--video']))\n")
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    p = track_with_file_limit(base / "folder", out, 20000, "--video")
     assert p.returncode == 2, p.stderr
     assert re.search(r"overlay\.mp4: cannot write the video", error_line(p.stderr))
     assert_outputs_sane(out)
