@@ -1,6 +1,7 @@
 """Colour-marker blobs: sub-pixel weighted centroids in undistorted pixels."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -56,4 +57,42 @@ def test_min_area_and_other_colour():
     np.zeros((50, 60, 3), np.float32),
 ])
 def test_no_markers(img):
+    assert detect_markers(img).shape == (0, 2)
+
+
+def _dark_shaft_on_tissue(marker: bool) -> np.ndarray:
+    """A dark grey band on saturated red tissue (BGR), with a painted disc on the band."""
+    img = np.zeros((240, 320, 3), np.uint8)
+    img[:] = (40, 40, 170)                                  # red tissue
+    yy, xx = np.mgrid[:240, :320]
+    band = np.abs((yy - 0.5 * xx) - 40) < 35                # a 70 px wide oblique band
+    img[band] = (60, 62, 58)                                # dark grey shaft
+    if marker:
+        img = paint(img, (200.0, 140.0), 8.0, (220, 120, 20))
+    return img
+
+
+@pytest.mark.parametrize("quality", [60, 85])
+def test_chroma_fringes_of_compressed_frames_are_not_markers(quality):
+    """JPEG's subsampled chroma leaves thin blue-ish fringes along a dark edge on red tissue;
+    only the painted disc is a marker (OpenCV encodes and decodes the frame)."""
+    for marker in (False, True):
+        ok, buf = cv2.imencode(".jpg", _dark_shaft_on_tissue(marker), [cv2.IMWRITE_JPEG_QUALITY, quality])
+        m = detect_markers(cv2.imdecode(buf, cv2.IMREAD_COLOR))
+        if marker:
+            assert m.shape == (1, 2) and np.hypot(*(m[0] - (200.0, 140.0))) < 1.0
+        else:
+            assert m.shape == (0, 2)
+
+
+def test_tinted_surface_is_not_a_marker():
+    """A grey surface under blue light, its saturation dithered around the colour test's
+    S >= 40 in 4 px blocks (S 50 / 30), passes the colour test in patches that are no more
+    saturated than the surface around them; paint (S ~ 230) on it would be."""
+    img = np.full((200, 260, 3), 200, np.uint8)
+    yy, xx = np.mgrid[40:160, 30:230]
+    hi = ((yy // 4) % 2 == 0) & ((xx // 4) % 2 == 0)         # isolated 4 x 4 blocks
+    img[40:160, 30:230] = np.where(hi[..., None], (120, 102, 96), (120, 108, 106))  # S 51 / 30
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    assert hsv[40:160, 30:230, 1].max() >= 50 and hsv[40:160, 30:230, 1].min() <= 30
     assert detect_markers(img).shape == (0, 2)

@@ -3,9 +3,23 @@
 A pixel is a marker pixel when its OpenCV HSV value (H in [0, 180), S, V in
 [0, 255]) satisfies hue_low <= H <= hue_high, S >= sat_min and V >= val_min
 (default: blue paint, H in [90, 120], S, V >= 40). Marker pixels form blobs by
-8-connected components; blobs with area < min_area px or > max_area_frac of
+8-connected components of the mask *opened* by a 3x3 square (a blob must be
+at least 3 px thick: the one- and two-pixel colour fringes that chroma
+subsampling (JPEG, H.264) leaves along dark edges on saturated tissue are
+not markers); each blob then takes back the mask pixels within 1 px of it
+(its anti-aliased rim). Blobs with area < min_area px or > max_area_frac of
 the image are dropped (the latter keeps a blue-tinted or saturated frame from
-becoming one giant "marker"). Each blob's centre is the weighted centroid
+becoming one giant "marker"), and so is a blob that is not more saturated
+than its surroundings: paint is, a tinted surface (a grey shaft under
+coloured light, blue-ish tissue) is not. With S_in the median S of the blob
+and S_ring that of the non-mask pixels in a ring of width
+r = clip(sqrt(area / pi) / 2, 3, 8) px around it, a blob is kept when
+
+    S_in - S_ring >= contrast_min   and   S_in >= contrast_ratio * S_ring
+
+(an empty ring, at the image border, passes). Measured on randomized
+recordings: docs/decisions/marker-contrast.md. Each blob's centre is the
+weighted centroid
 
     c = sum_p w(p) p / sum_p w(p),   w(p) = S(p) / 255,
 
@@ -34,8 +48,10 @@ class MarkerConfig:
     max_area_frac: float = 0.05   #: of the image area
     max_markers: int = 32         #: keep the largest blobs
     max_side: int = 480           #: candidate search on a copy this size (0: full res)
-    margin: int = 4               #: px around a candidate box measured at full res
+    margin: int = 10              #: px around a candidate box measured at full res (>= ring + 2)
     max_boxes: int = 12           #: more candidates than this: one full-res pass instead
+    contrast_min: float = 40.0    #: S_in - S_ring at least (OpenCV S units, module doc)
+    contrast_ratio: float = 1.5   #: S_in / S_ring at least
 
 
 def _bgr(image: np.ndarray) -> np.ndarray | None:
@@ -52,13 +68,49 @@ def _mask(img: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
     return mask, hsv
 
 
+_SQUARE3 = np.ones((3, 3), np.uint8)
+_SQUARE2 = np.ones((2, 2), np.uint8)
+RING_MIN, RING_MAX = 3, 8    #: px, the saturation ring's width (module doc)
+
+
+def _blob_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """(n, labels, stats) of the mask's blobs: components of the 3x3-opened mask, each
+    grown back over the mask pixels within 1 px (labels 0: background)."""
+    core = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _SQUARE3)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(core, connectivity=8, ltype=cv2.CV_32S)
+    if n > 1:
+        grown = cv2.dilate(labels.astype(np.float32), _SQUARE3)
+        labels = np.where(mask > 0, grown, 0).astype(np.int32)
+    return n, labels, stats
+
+
+def _saturated(sat: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.ndarray,
+               ids: np.ndarray, area: np.ndarray, cfg: MarkerConfig) -> np.ndarray:
+    """(len(ids),) bool: the blob is more saturated than its ring (module doc)."""
+    H, W = mask.shape
+    keep = np.ones(len(ids), bool)
+    for j, k in enumerate(ids):
+        r = int(np.clip(round(0.5 * np.sqrt(area[k] / np.pi)), RING_MIN, RING_MAX))
+        x, y, w, h = stats[k, :4]
+        x0, y0, x1, y1 = max(0, x - r - 1), max(0, y - r - 1), min(W, x + w + r + 1), min(H, y + h + r + 1)
+        blob = (labels[y0:y1, x0:x1] == k).astype(np.uint8)
+        ring = (cv2.dilate(blob, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1)))
+                > 0) & (mask[y0:y1, x0:x1] == 0)
+        if not ring.any():
+            continue
+        s_in = float(np.median(sat[y0:y1, x0:x1][blob > 0]))
+        s_ring = float(np.median(sat[y0:y1, x0:x1][ring]))
+        keep[j] = s_in - s_ring >= cfg.contrast_min and s_in >= cfg.contrast_ratio * s_ring
+    return keep
+
+
 def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0: int = 0):
     """Weighted centroids (n, 2) and areas (n,) of the blobs of an image (offset x0, y0)."""
     mask, hsv = _mask(img, cfg)
+    n, labels, stats = _blob_labels(mask)
     nz = cv2.findNonZero(mask)
-    if nz is None:
+    if nz is None or n <= 1:
         return np.zeros((0, 2)), np.zeros(0)
-    n, labels = cv2.connectedComponents(mask, connectivity=8, ltype=cv2.CV_32S)
     nz = nz.reshape(-1, 2)
     xs, ys = nz[:, 0], nz[:, 1]
     lab = labels[ys, xs]
@@ -70,6 +122,7 @@ def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0:
     good = (area >= cfg.min_area) & (area <= max_area) & (sw > 0)
     good[0] = False  # background
     ids = np.flatnonzero(good)
+    ids = ids[_saturated(hsv[:, :, 1], mask, labels, stats, ids, area, cfg)]
     return np.stack([sx[ids] / sw[ids] + x0, sy[ids] / sw[ids] + y0], 1), area[ids]
 
 
@@ -109,6 +162,7 @@ def detect_markers(image: np.ndarray, config: MarkerConfig | None = None) -> np.
     else:
         small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         mask, _ = _mask(small, cfg)
+        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _SQUARE2)   # the 3x3 opening, at this scale
         if cv2.countNonZero(mask) == 0:
             return np.zeros((0, 2))
         stats = _candidate_boxes(mask)
