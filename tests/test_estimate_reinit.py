@@ -1,10 +1,11 @@
 """graphtrack.estimate.reinit: the innovation gate, the lock's covariance gate, the prior
-guard and the smoother's restart, on the synthetic world (tests/robust_world.py).
+guard, the smoother's restart and the window challenge, on the synthetic world
+(tests/robust_world.py).
 
 Oracles: the lock gate against the quadratic form computed by hand; the gate's
 effect against the same run with the gate off (an occluder's edges pull an
 ungated estimator by millimetres, the gated one stays within the motion model's
-reach); the prior guard and the restart against the known true E.
+reach); the prior guard, the restart and the window challenge against the known true E.
 """
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from graphtrack.estimate import make_estimator
 from graphtrack.estimate.reinit import LOCK_FLOOR, PRIOR_GATE, SearchInit
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 from graphtrack.io.frame import Frame
+from graphtrack.robot.features import base_features
 from robust_world import make_world
 
 MODEL = "line-intensities"
@@ -126,3 +128,41 @@ def test_smoother_restarts_after_a_gap_and_reacquires_a_moved_tool():
     after = np.array(errs[60 - 20:])
     assert np.all(after[15:] < fresh + 2e-3), (fresh, after)
     assert after[-1] < after[15]
+
+
+def _history(world, policy, x_est, frames=16):
+    """Fill the policy's history with frames seen through the true E, each estimated at x_est."""
+    for t in range(frames):
+        q, _ = _frame(world, 3 * t)
+        obs = _obs(world, q, world.E_true, 100 + t)
+        policy.history.append((q, obs, x_est, float(policy.scorer(q, obs, x_est[None])[0])))
+
+
+def test_window_challenge_replaces_a_wrong_mode_and_keeps_a_right_one():
+    """An estimate 5 mm along the shaft and 2 deg off (a mode one frame barely tells from the
+    truth) is replaced by the several-frame search's mode, which lies near the known true E;
+    an estimate at the truth is kept (no gain beyond the threshold)."""
+    world = make_world(7, 4.0, 2.0)
+    x_true = matrix_to_bw(world.E_true @ invert(world.ctx.handeye))
+    x_wrong = x_true + np.array([0.004, -0.003, 0.0, 0.0, 0.035, 0.0])
+    policy = SearchInit(world.ctx, seed=0, window=6)
+    _history(world, policy, x_wrong)
+    E = policy._challenge(x_wrong, None)
+    assert E is not None and policy.switches == 1 and len(policy.history) == 0
+    q, _ = _frame(world, 45)
+    tip = lambda E: base_features(world.ctx.robot, q).transformed(E).tip   # noqa: E731
+    wrong = np.linalg.norm(tip(bw_to_matrix(x_wrong) @ world.ctx.handeye) - tip(world.E_true))
+    assert wrong > 8e-3 and np.linalg.norm(tip(E) - tip(world.E_true)) < 2.5e-3
+    policy = SearchInit(world.ctx, seed=0, window=6)
+    _history(world, policy, x_true)
+    assert policy._challenge(x_true, None) is None and policy.switches == 0 and policy.challenges == 1
+
+
+def test_window_challenge_runs_after_8_and_16_frames_used():
+    world = make_world(7, 4.0, 2.0)
+    est = make_estimator("smoother", world.ctx)
+    for t in range(40):
+        q, fr = _frame(world, t)
+        est.step(fr, _obs(world, q, world.E_true, t))
+    assert est.reinit.challenges == 2 + 2 * est.reinit.switches
+    assert make_estimator("pf", world.ctx, particles=200).search.window == 0

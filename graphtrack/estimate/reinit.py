@@ -58,9 +58,27 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
 - Prior guard: an estimate outside the hand-eye prior's region (as the
   ``prior_gate`` above) has run away (the lumped error never leaves it): the
   search is run around the prior's centre and its mode adopted at once.
+- Window challenge: one frame rarely decides between two modes (the shaft's
+  slide along its axis and its tilt towards the camera are barely seen, and a
+  mode 5-10 mm off can explain a frame almost as well as the truth), but the
+  modes of different frames disagree as the tool moves. After 8 and 16 frames
+  used since the last adoption (start-up or re-initialisation), the search runs
+  on ``window`` frames (0: no challenge; the smoother's default 6) spread over
+  those frames (E is nearly constant over half a second):
+  it maximises sum_k log P(z_k | E(x)) + the hand-eye prior. Its mode x_w is
+  adopted when it is a different mode (outside the current estimate's
+  covariance gate, as :meth:`SearchInit.near_lock`, without the motion term)
+  and explains those frames better than the estimates did, by more than
+  ``margin`` nats per frame:
+
+      Lambda = sum_k [log P(z_k | E(x_w)) - log P(z_k | E(x_k))] > window * margin
+
+  (x_k: the estimate on frame k). The search fits x_w to these very frames;
+  with 6 parameters that gains ~3 nats in all, far below the threshold.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +93,8 @@ PRIOR_GATE = 22.46
 LOCK_FLOOR = 0.1
 #: px, the pixel sigma at which a prediction after a gap is judged (the search's second stage)
 COARSE_SIGMA = SIGMAS[1]
+#: frames used that the window challenge keeps (it draws ``window`` of them)
+HISTORY = 16
 
 
 def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
@@ -102,7 +122,7 @@ class SearchInit:
                  markers: bool = True, margin: float = 5.0, seed: int = 0, monitor: bool = True,
                  n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE,
                  lock_threshold: float = 0.25, lock_frames: int = 10, innovation_gate: bool = True,
-                 motion_cov: np.ndarray | None = None, **scorer_options):
+                 motion_cov: np.ndarray | None = None, window: int = 0, **scorer_options):
         b, w = spread
         self.spread = np.array([b] * 3 + [w] * 3, float)
         self.gap = int(gap)
@@ -128,6 +148,10 @@ class SearchInit:
         self.unused = 0              # frames since the estimator last used a frame
         self.reject_run = 0          # consecutive outlier frames
         self.motion_cov = None if motion_cov is None else np.asarray(motion_cov, float)
+        self.window = int(window)    # frames of the window challenge (0: no challenge)
+        self.history: deque = deque(maxlen=HISTORY)   # (q, observation, x, loglik) of frames used
+        self.challenges = self.switches = 0
+        self.used = 0                # frames appended to the history since the last adoption
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
@@ -140,6 +164,8 @@ class SearchInit:
         self.unused = self.lock_run = self.reject_run = 0
         self.count += 1
         self.result = res
+        self.history.clear()
+        self.used = 0
         return bw_to_matrix(res.x) @ self.E_ref
 
     def _search(self, q, observation, x_cur, prior_centre=None) -> SearchResult:
@@ -202,6 +228,11 @@ class SearchInit:
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
         self.since = 0
         self._gate(m_cur, after_gap)
+        if self.window and not self.rejected and np.isfinite(ll_cur):
+            self.history.append((np.asarray(q, float), observation, x_cur, ll_cur))
+            self.used += 1
+            if self.candidate is None and not after_gap and not diverged and _scheduled(self.used):
+                return self._challenge(x_cur, cov)
         if self.candidate is not None and not after_gap:
             return self._test(q, observation, ll_cur, m_cur)
         if not (after_gap or diverged):
@@ -257,3 +288,35 @@ class SearchInit:
             return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
         except np.linalg.LinAlgError:
             return True
+
+    def _challenge(self, x_cur: np.ndarray, cov: np.ndarray | None) -> np.ndarray | None:
+        """The window challenge (module doc): a new initial E, or None."""
+        frames = list(self.history)
+        pick = np.unique(np.linspace(0, len(frames) - 1, min(self.window, len(frames))).round().astype(int))
+        sel = [frames[i] for i in pick]
+        self.challenges += 1
+        self.searches += 1
+        res = global_search(lambda x, s: sum(self.scorer(q, o, x, s) for q, o, _, _ in sel), x_cur,
+                            self.spread, self.rng, n=max(256, self.n // 2), prior_centre=np.zeros(6))
+        if self.outside(res.x) or self._same_mode(res.x, x_cur, cov):
+            return None
+        gain = sum(float(self.scorer(q, o, res.x)[0]) - ll for q, o, _, ll in sel)
+        if gain <= len(sel) * self.margin:
+            return None
+        self.switches += 1
+        return self._adopt(res)
+
+    def _same_mode(self, x: np.ndarray, x_cur: np.ndarray, cov: np.ndarray | None) -> bool:
+        """x lies within the current estimate's covariance gate (cov + (LOCK_FLOOR spread)^2)."""
+        C = np.diag((LOCK_FLOOR * self.spread) ** 2)
+        if cov is not None and np.all(np.isfinite(cov)):
+            C = C + np.asarray(cov, float)
+        d = np.asarray(x, float) - np.asarray(x_cur, float)
+        return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
+
+
+def _scheduled(used: int) -> bool:
+    """The window challenge runs after 8 and 16 frames used since an adoption (later ones
+    switched to modes the scorer prefers and the smoother's edge-bias model does not:
+    docs/decisions/window-challenge.md)."""
+    return used in (8, 16)

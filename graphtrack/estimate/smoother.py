@@ -19,6 +19,8 @@ Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
 ``start_up_wait``), or initialised by the global search (:mod:`graphtrack.estimate.reinit`).
 A re-initialisation by that policy restarts the window: the frame is started up
 as the first one. An outlier frame of its innovation gate adds only the motion factor.
+The policy's window challenge (``search_window`` frames; 0: off) re-searches on
+several frames 8 and 16 frames after each start (docs/decisions/window-challenge.md).
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
 t: x_t right after frame t's update (filtered); cov/std: its marginal in the left
 (b, w) perturbation. iSAM2 relinearises at ``relinearize_threshold`` (rad / m of
@@ -26,7 +28,7 @@ gtsam's right perturbation) and, from ``settle`` s after start-up, settled keys 
 at ``settled_relinearize_threshold``.
 
 Decisions and measurements: docs/decisions/bias-block-timestamps.md,
-smoother-start-up.md, settled-relinearisation.md, startup-search.md.
+smoother-start-up.md, settled-relinearisation.md, startup-search.md, window-challenge.md.
 """
 from __future__ import annotations
 
@@ -82,7 +84,7 @@ class FixedLagSmootherEstimator:
                  settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
                  start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
-                 search_std_w: float = 0.05, reinit_gap: int = 30,
+                 search_std_w: float = 0.05, reinit_gap: int = 30, search_window: int = 6,
                  marker_gate_follows_covariance: bool = False, **options):
         self.gtsam = gtsam
         self.ctx = ctx
@@ -123,7 +125,7 @@ class FixedLagSmootherEstimator:
         self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
         if search:
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
-                                     markers, motion_cov=self.motion_cov)
+                                     markers, motion_cov=self.motion_cov, window=search_window)
             self.start_up_wait = 0    # the search associates markers per hypothesis
         self.restarts = 0             # re-initialisations (window restarted)
 
