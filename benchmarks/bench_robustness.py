@@ -42,7 +42,8 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 DATA = Path(os.environ.get("GRAPHTRACK_BENCH_DATA", HERE / ".data")) / "robustness"
-SEED0 = 910_000          # held out: nothing is tuned or trained on 910000-910999
+SEED0 = 920_000          # held out: nothing is tuned or trained on 920000-920999 (900000-910199 were
+#                          looked at while diagnosing failures, so no longer count as unseen)
 TUNING_SEED0 = 700_000   # tuning: defaults may be chosen on 700000-700999
 RECORDINGS = 200
 FRAMES = (90, 150)
