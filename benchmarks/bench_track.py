@@ -188,7 +188,7 @@ def run(results: dict) -> dict:
     long = long_recording()
     t = time.perf_counter()
     cmd = [sys.executable, "-m", "graphtrack.cli", "track", str(long), "--estimator", "smoother",
-           "--detector", "canny", "--out", str(DATA / "out-long"), "--quiet"]
+           "--detector", "canny", "--out", str(DATA / "out-long"), "--overwrite", "--quiet"]
     child = subprocess.Popen(cmd)
     hwm_kb = _poll_peak_rss_kb(child)
     if child.returncode != 0:
