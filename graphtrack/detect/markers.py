@@ -3,15 +3,14 @@
 A pixel is a marker pixel when its OpenCV HSV value (H in [0, 180), S, V in
 [0, 255]) satisfies hue_low <= H <= hue_high, S >= sat_min and V >= val_min
 (default: blue paint, H in [90, 120], S, V >= 40). Marker pixels form blobs by
-8-connected components of the mask *opened* by a 3x3 square (a blob must be
-at least 3 px thick: the one- and two-pixel colour fringes that chroma
-subsampling (JPEG, H.264) leaves along dark edges on saturated tissue are
-not markers); each blob then takes back the mask pixels within 1 px of it
-(its anti-aliased rim). Blobs with area < min_area px or > max_area_frac of
+8-connected components. Blobs with area < min_area px or > max_area_frac of
 the image are dropped (the latter keeps a blue-tinted or saturated frame from
 becoming one giant "marker"), and so is a blob that is not more saturated
-than its surroundings: paint is, a tinted surface (a grey shaft under
-coloured light, blue-ish tissue) is not. With S_in the median S of the blob
+than its surroundings: paint is; a tinted surface (a grey shaft under
+coloured light, blue-ish tissue) and the colour fringes that chroma
+subsampling (JPEG, H.264) leaves along a dark edge on saturated tissue are
+not. A marker seen edge-on near the limb is a thin sliver of paint and is
+kept (it is a marker; the painted-disc model predicts its centroid). With S_in the median S of the blob
 and S_ring that of the non-mask pixels in a ring of width
 r = clip(sqrt(area / pi) / 2, 3, 8) px around it, a blob is kept when
 
@@ -68,19 +67,12 @@ def _mask(img: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
     return mask, hsv
 
 
-_SQUARE3 = np.ones((3, 3), np.uint8)
-_SQUARE2 = np.ones((2, 2), np.uint8)
 RING_MIN, RING_MAX = 3, 8    #: px, the saturation ring's width (module doc)
 
 
 def _blob_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-    """(n, labels, stats) of the mask's blobs: components of the 3x3-opened mask, each
-    grown back over the mask pixels within 1 px (labels 0: background)."""
-    core = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _SQUARE3)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(core, connectivity=8, ltype=cv2.CV_32S)
-    if n > 1:
-        grown = cv2.dilate(labels.astype(np.float32), _SQUARE3)
-        labels = np.where(mask > 0, grown, 0).astype(np.int32)
+    """(n, labels, stats) of the mask's 8-connected blobs (labels 0: background)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     return n, labels, stats
 
 
@@ -162,7 +154,6 @@ def detect_markers(image: np.ndarray, config: MarkerConfig | None = None) -> np.
     else:
         small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         mask, _ = _mask(small, cfg)
-        mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, _SQUARE2)   # the 3x3 opening, at this scale
         if cv2.countNonZero(mask) == 0:
             return np.zeros((0, 2))
         stats = _candidate_boxes(mask)
@@ -194,3 +185,4 @@ def detect_markers(image: np.ndarray, config: MarkerConfig | None = None) -> np.
             c, a = c[~dup], a[~dup]
     order = np.argsort(-a, kind="stable")[: cfg.max_markers]
     return c[order]
+
