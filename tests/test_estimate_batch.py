@@ -149,6 +149,42 @@ def test_runaway_refinement_keeps_the_online_pose(monkeypatch):
     assert all(e.extra["kept_online"] == 0.0 for e in out)
 
 
+def test_runaway_refinement_keeps_an_online_pose_that_is_itself_outside_but_nearer(monkeypatch):
+    """The online pose may itself lie outside the region (a lost lock, 20 mm off); a refined
+    pose 0.2 m away is still the run-away: the one nearer the prior's centre is written."""
+    import graphtrack.estimate.batch as batch
+    from graphtrack.estimate.lm import LMResult
+    from graphtrack.estimate.reinit import PRIOR_GATE, prior_distance
+    from graphtrack.geometry.se3 import bw_to_matrix
+
+    seq = sequence(12, seed=4, scene=SCENE)
+    real = batch.levenberg_marquardt
+    shift = {}
+
+    def far(graph, values, *a, **kw):
+        res = real(graph, values, *a, **kw)
+        moved = gtsam.Values(res.values)
+        for k in range(len(seq.frames)):
+            moved.update(key(k), gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, -shift["refined"]])).compose(
+                res.values.atPose3(key(k))))
+        return LMResult(moved, res.iterations, res.error, res.linear_solves)
+
+    monkeypatch.setattr(batch, "levenberg_marquardt", far)
+    for refined, expect_kept in ((0.2, True), (0.02, False)):
+        shift["refined"] = refined
+        est = BatchEstimator(seq.ctx, **MATCHED, provisional="last", covariance=False)
+        for f in seq.frames:
+            est.step(f.frame(), f.observation())
+        lost = [bw_to_matrix([0.0, 0.0, -0.05, 0.0, 0.0, 0.0]) @ seq.E0 for _ in seq.frames]  # 50 mm off
+        assert prior_distance(lost[0], seq.E0, *est.prior_sigma) > PRIOR_GATE
+        est.initial = [E.copy() for E in lost]        # the online poses the refinement starts from
+        out = est.finish()
+        for e, E in zip(out, lost):
+            assert e.extra["kept_online"] == float(expect_kept)
+            if expect_kept:
+                np.testing.assert_array_equal(e.E, E)
+
+
 def test_outside_prior_hand_computed():
     from graphtrack.estimate.reinit import PRIOR_GATE, outside_prior
     from graphtrack.geometry.se3 import bw_to_matrix

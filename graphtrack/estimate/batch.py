@@ -41,7 +41,7 @@ from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussi
                                        left_from_right_cov, split_options)
 from graphtrack.estimate.stereo import stereo_frame_factors
 from factors.edge_bias import BIAS_DIM, bias_key
-from graphtrack.estimate.reinit import outside_prior
+from graphtrack.estimate.reinit import PRIOR_GATE, prior_distance
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator
 
 
@@ -59,7 +59,7 @@ class BatchEstimator:
     stochastic = False
     supported_observations = OBSERVATION_MODELS
     #: std_*, and ``kept_online``: 1 where the refined pose left the hand-eye prior's 99.9 % region
-    #: (a run-away refinement) and the online smoother's pose was kept instead
+    #: (a run-away refinement) and the online smoother's pose, nearer the prior, was kept instead
     extra_columns = STD_COLUMNS + ("kept_online",)
 
     def __init__(self, ctx: TrackingContext, markers: bool = True,
@@ -206,9 +206,9 @@ class BatchEstimator:
         out, kept = [], 0
         for k in range(n):
             E = result.atPose3(key(k)).matrix()
-            away = outside_prior(E, self.E0, *self.prior_sigma) and not outside_prior(
-                self.initial[k], self.E0, *self.prior_sigma)
-            if away:   # a run-away refinement: the online smoother's pose is kept
+            d = prior_distance(E, self.E0, *self.prior_sigma)
+            away = d > PRIOR_GATE and prior_distance(self.initial[k], self.E0, *self.prior_sigma) < d
+            if away:   # a run-away refinement: the online pose, nearer the prior, is kept
                 E, covs[k], kept = self.initial[k], None, kept + 1
             cov = None if covs[k] is None else left_from_right_cov(E, covs[k])
             std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))

@@ -97,12 +97,17 @@ COARSE_SIGMA = SIGMAS[1]
 HISTORY = 16
 
 
+def prior_distance(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float) -> float:
+    """|x / sigma|^2 of E = Exp(x) . E_ref, x = (b [m], w [rad]) the left perturbation,
+    sigma = (sigma_b [m] x 3, sigma_w [rad] x 3): the squared Mahalanobis distance from the prior."""
+    x = matrix_to_bw(np.asarray(E, float) @ invert(np.asarray(E_ref, float)))
+    return float(np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2))
+
+
 def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
                   gate: float = PRIOR_GATE) -> bool:
-    """True when E = Exp(x) . E_ref lies outside the prior's region |x / sigma|^2 <= gate, x = (b [m],
-    w [rad]) the left perturbation, sigma = (sigma_b [m] x 3, sigma_w [rad] x 3)."""
-    x = matrix_to_bw(np.asarray(E, float) @ invert(np.asarray(E_ref, float)))
-    return bool(np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2) > gate)
+    """True when E lies outside the prior's region :func:`prior_distance` <= gate."""
+    return prior_distance(E, E_ref, sigma_b, sigma_w) > gate
 
 
 @dataclass
