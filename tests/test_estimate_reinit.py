@@ -135,7 +135,7 @@ def _history(world, policy, x_est, frames=16):
     for t in range(frames):
         q, _ = _frame(world, 3 * t)
         obs = _obs(world, q, world.E_true, 100 + t)
-        policy.history.append((q, obs, x_est, float(policy.scorer(q, obs, x_est[None])[0])))
+        policy.history.append((q, obs, float(policy.scorer(q, obs, x_est[None])[0])))
 
 
 def test_window_challenge_replaces_a_wrong_mode_and_keeps_a_right_one():

@@ -10,8 +10,8 @@ than its surroundings: paint is; a tinted surface (a grey shaft under
 coloured light, blue-ish tissue) and the colour fringes that chroma
 subsampling (JPEG, H.264) leaves along a dark edge on saturated tissue are
 not. A marker seen edge-on near the limb is a thin sliver of paint and is
-kept (it is a marker; the painted-disc model predicts its centroid). With S_in the median S of the blob
-and S_ring that of the non-mask pixels in a ring of width
+kept (the painted-disc model predicts its centroid). With S_in the median S
+of the blob and S_ring that of the non-mask pixels in a ring of width
 r = clip(sqrt(area / pi) / 2, 3, 8) px around it, a blob is kept when
 
     S_in - S_ring >= contrast_min   and   S_in >= contrast_ratio * S_ring
@@ -70,12 +70,6 @@ def _mask(img: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
 RING_MIN, RING_MAX = 3, 8    #: px, the saturation ring's width (module doc)
 
 
-def _blob_labels(mask: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
-    """(n, labels, stats) of the mask's 8-connected blobs (labels 0: background)."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
-    return n, labels, stats
-
-
 def _saturated(sat: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.ndarray,
                ids: np.ndarray, area: np.ndarray, cfg: MarkerConfig) -> np.ndarray:
     """(len(ids),) bool: the blob is more saturated than its ring (module doc)."""
@@ -99,7 +93,7 @@ def _saturated(sat: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.
 def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0: int = 0):
     """Weighted centroids (n, 2) and areas (n,) of the blobs of an image (offset x0, y0)."""
     mask, hsv = _mask(img, cfg)
-    n, labels, stats = _blob_labels(mask)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     nz = cv2.findNonZero(mask)
     if nz is None or n <= 1:
         return np.zeros((0, 2)), np.zeros(0)
@@ -185,4 +179,3 @@ def detect_markers(image: np.ndarray, config: MarkerConfig | None = None) -> np.
             c, a = c[~dup], a[~dup]
     order = np.argsort(-a, kind="stable")[: cfg.max_markers]
     return c[order]
-

@@ -154,7 +154,7 @@ class SearchInit:
         self.reject_run = 0          # consecutive outlier frames
         self.motion_cov = None if motion_cov is None else np.asarray(motion_cov, float)
         self.window = int(window)    # frames of the window challenge (0: no challenge)
-        self.history: deque = deque(maxlen=HISTORY)   # (q, observation, x, loglik) of frames used
+        self.history: deque = deque(maxlen=HISTORY)   # (q, observation, loglik at the estimate) of frames used
         self.challenges = self.switches = 0
         self.used = 0                # frames appended to the history since the last adoption
 
@@ -234,7 +234,7 @@ class SearchInit:
         self.since = 0
         self._gate(m_cur, after_gap)
         if self.window and not self.rejected and np.isfinite(ll_cur):
-            self.history.append((np.asarray(q, float), observation, x_cur, ll_cur))
+            self.history.append((np.asarray(q, float), observation, ll_cur))
             self.used += 1
             if self.candidate is None and not after_gap and not diverged and _scheduled(self.used):
                 return self._challenge(x_cur, cov)
@@ -301,11 +301,11 @@ class SearchInit:
         sel = [frames[i] for i in pick]
         self.challenges += 1
         self.searches += 1
-        res = global_search(lambda x, s: sum(self.scorer(q, o, x, s) for q, o, _, _ in sel), x_cur,
+        res = global_search(lambda x, s: sum(self.scorer(q, o, x, s) for q, o, _ in sel), x_cur,
                             self.spread, self.rng, n=max(256, self.n // 2), prior_centre=np.zeros(6))
         if self.outside(res.x) or self._same_mode(res.x, x_cur, cov):
             return None
-        gain = sum(float(self.scorer(q, o, res.x)[0]) - ll for q, o, _, ll in sel)
+        gain = sum(float(self.scorer(q, o, res.x)[0]) - ll for q, o, ll in sel)
         if gain <= len(sel) * self.margin:
             return None
         self.switches += 1
@@ -317,7 +317,10 @@ class SearchInit:
         if cov is not None and np.all(np.isfinite(cov)):
             C = C + np.asarray(cov, float)
         d = np.asarray(x, float) - np.asarray(x_cur, float)
-        return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
+        try:
+            return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
+        except np.linalg.LinAlgError:
+            return True
 
 
 def _scheduled(used: int) -> bool:
