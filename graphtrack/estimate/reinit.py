@@ -287,7 +287,12 @@ class SearchInit:
         used, Q the estimator's motion model per frame (True without a covariance)."""
         if cov is None or self.motion_cov is None or not np.all(np.isfinite(cov)):
             return True
-        C = np.asarray(cov, float) + self.unused * self.motion_cov + np.diag((LOCK_FLOOR * self.spread) ** 2)
+        return self._within(x, x_cur, np.asarray(cov, float) + self.unused * self.motion_cov)
+
+    def _within(self, x: np.ndarray, x_cur: np.ndarray, C: np.ndarray) -> bool:
+        """(x - x_cur)^T (C + (LOCK_FLOOR spread)^2)^-1 (x - x_cur) <= ``prior_gate`` (True
+        when that matrix is singular): the gates of :meth:`near_lock` and :meth:`_same_mode`."""
+        C = C + np.diag((LOCK_FLOOR * self.spread) ** 2)
         d = np.asarray(x, float) - np.asarray(x_cur, float)
         try:
             return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
@@ -312,15 +317,10 @@ class SearchInit:
         return self._adopt(res)
 
     def _same_mode(self, x: np.ndarray, x_cur: np.ndarray, cov: np.ndarray | None) -> bool:
-        """x lies within the current estimate's covariance gate (cov + (LOCK_FLOOR spread)^2)."""
-        C = np.diag((LOCK_FLOOR * self.spread) ** 2)
-        if cov is not None and np.all(np.isfinite(cov)):
-            C = C + np.asarray(cov, float)
-        d = np.asarray(x, float) - np.asarray(x_cur, float)
-        try:
-            return bool(d @ np.linalg.solve(C, d) <= self.prior_gate)
-        except np.linalg.LinAlgError:
-            return True
+        """x lies within the current estimate's covariance gate (cov + (LOCK_FLOOR spread)^2;
+        the floor alone without a finite covariance)."""
+        finite = cov is not None and np.all(np.isfinite(cov))
+        return self._within(x, x_cur, np.asarray(cov, float) if finite else np.zeros((6, 6)))
 
 
 def _scheduled(used: int) -> bool:
