@@ -102,3 +102,24 @@ def test_absurd_observations_never_kill_the_weights():
         w = pf.weights
         assert np.all(np.isfinite(w)) and w.sum() == pytest.approx(1.0) and w.max() > 0
         assert np.all(np.isfinite(est.E)) and np.isfinite(est.extra["ess"])
+
+
+def test_roughening_keeps_the_clouds_mean_and_covariance():
+    """Kernel shrinkage (Liu & West): after resampling and roughening the cloud has the
+    weighted mean and covariance it had before (in expectation); jitter alone would
+    inflate the covariance by 1 + h^2 = 1.25 at h = 0.5."""
+    n = 40000
+    pf = ParticleFilter(SCENE.ctx, particles=n, seed=0, search=False, roughening=0.5)
+    rng = np.random.default_rng(5)
+    scale = np.array([1e-3, 5e-4, 2e-3, 4e-3, 2e-3, 1e-2])   # inside the prior spread (no cap)
+    pf.x = rng.standard_normal((n, 6)) * scale + 1e-3
+    logw = -0.5 * np.sum(((pf.x - 1e-3) / (1.5 * scale)) ** 2, axis=1)
+    w = np.exp(logw - logw.max())
+    w /= w.sum()
+    mean = w @ pf.x
+    cov = ((pf.x - mean) * w[:, None]).T @ (pf.x - mean)
+    pf.resample(w, cov)
+    after = pf.x.mean(axis=0)
+    assert np.all(np.abs(after - mean) < 0.05 * np.sqrt(np.diag(cov))), (after - mean) / np.sqrt(np.diag(cov))
+    ratio = np.var(pf.x, axis=0) / np.diag(cov)
+    np.testing.assert_allclose(ratio, 1.0, atol=0.05)

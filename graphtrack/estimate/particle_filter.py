@@ -12,8 +12,15 @@ Update: log w_n += log P(z_t | E(x_n)) (:mod:`graphtrack.estimate.observation_mo
 all particles projected at once by :mod:`graphtrack.estimate.pf.projection`), in log
 space; a frame without shaft or markers leaves the weights alone. When ESS =
 1 / sum w_n^2 < ``resample_threshold`` * N: systematic resampling, then roughening
-x_n += N(0, ``roughening``^2 Sigma), Sigma the weighted covariance before resampling,
-the jitter's std capped per axis at the prior spread.
+by kernel shrinkage (Liu & West 2001), h = ``roughening``:
+
+    x_n <- a x_n + (1 - a) x_bar + N(0, h^2 Sigma),   a = sqrt(1 - h^2),
+
+x_bar and Sigma the weighted mean and covariance before resampling, the jitter's std
+capped per axis at the prior spread. The shrinkage keeps the cloud's mean and
+covariance (a^2 Sigma + h^2 Sigma = Sigma): jitter alone would inflate Sigma by
+(1 + h^2) per resampling, a random walk along the directions the images barely
+constrain (docs/decisions/pf-kernel-shrinkage.md).
 Estimate: b = sum w_n b_n, R the chordal L2 mean of R(w_n), E_t = [R b; 0 1] . E_0;
 ``Estimate.std``/``cov``: the weighted covariance of x. With ``search`` the cloud is
 started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`).
@@ -46,7 +53,8 @@ class ParticleFilter:
     Options (units): particles N; seed; markers (use detected markers);
     motion_std_b (m/frame), motion_std_w (rad/frame); init_std_b (m),
     init_std_w (rad); resample_threshold (fraction of N for ESS);
-    roughening (fraction of the particle std added after resampling, 0: off);
+    roughening h (kernel bandwidth: the jitter std after resampling as a fraction
+    of the particle std, with shrinkage towards the mean; 0: off);
     gamma_rho (1/px), gamma_theta (1/rad): polar models; use_edge_ids: pair
     detected and projected edges by Observation.edge_ids instead of the best
     pairing per particle; pixel_sigma (px), pixel_outlier_sigmas,
@@ -275,12 +283,15 @@ class ParticleFilter:
         self.cov = C
 
     def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
-        """Systematic resampling, then roughening with (roughening^2) Sigma."""
+        """Systematic resampling, then roughening by kernel shrinkage (module doc)."""
         w = np.exp(self.logw) if w is None else w
         idx = systematic_resample(w, self.rng)
+        mean = w @ self.x
         self.x = self.x[idx]
         self.logw = np.full(self.N, -np.log(self.N))
         if self.roughening > 0 and cov is not None:
+            a = np.sqrt(max(1.0 - self.roughening ** 2, 0.0))
+            self.x = a * self.x + (1.0 - a) * mean
             C = self.roughening ** 2 * cov
             # cap the jitter at the prior spread per axis (directions the data never
             # constrain would otherwise inflate by (1 + roughening^2) per resampling)
