@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from graphtrack.detect.base import Observation
+from graphtrack.estimate.divergence import misfit
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.reinit import LOCK_FLOOR, PRIOR_GATE, SearchInit
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
@@ -166,3 +167,62 @@ def test_window_challenge_runs_after_8_and_16_frames_used():
         est.step(fr, _obs(world, q, world.E_true, t))
     assert est.reinit.challenges == 2 + 2 * est.reinit.switches
     assert make_estimator("pf", world.ctx, particles=200).search.window == 0
+
+
+def _lines_by_features(world, q, x):
+    """(2, 2) shaft lines (rho px, theta rad) of E = Exp(x) . E_0 at reading q, through the
+    robot's feature model (not the particle filter's batched projection the policy uses)."""
+    from graphtrack.robot.features import shaft_lines
+
+    E = bw_to_matrix(x) @ world.ctx.handeye
+    rho, theta, valid = shaft_lines(base_features(world.ctx.robot, q).transformed(E), world.ctx.camera.K)
+    assert bool(valid)
+    return np.stack([rho, theta], -1)
+
+
+def _confirmation(world, times, x_cand, x_cur):
+    """Run a candidate's sequential test over the frames ``times`` (observations of the
+    true E); returns the frame count at which it adopted (None: never) and the policy."""
+    from graphtrack.estimate.reinit import _Candidate
+    from graphtrack.estimate.startup import SearchResult
+
+    policy = SearchInit(world.ctx, seed=0)
+    policy.candidate = _Candidate(SearchResult(x_cand, np.diag(SPREAD ** 2) * 1e-4, 0.0, 0.0))
+    for n, t in enumerate(times, start=1):
+        q = world.joints(t)
+        obs = _obs(world, q, world.E_true, t)
+        ll_cur, floor = policy.scorer.with_floor(q, obs, x_cur)
+        if policy._test(q, obs, ll_cur, misfit(ll_cur, floor)) is not None:
+            return n, policy
+        if policy.candidate is None:
+            return None, policy
+    return None, policy
+
+
+def test_a_candidate_is_confirmed_only_once_the_tool_has_moved():
+    """The candidate test decides on frames where the tool moved: with the readings frozen
+    (a static occluder's edges would keep fitting a wrong candidate) it runs on to ``gap``
+    frames; with the tool moving it decides after ``confirm``. The motion it measures is
+    max |d rho| + |d theta| * half-diagonal of the candidate's lines, checked against the
+    robot's feature model."""
+    world = make_world(7, 3.0, 1.5)
+    x_true = world.x_true
+    x_cur = x_true + np.array([0.008, 0.0, 0.0, 0.0, 0.0, 0.0])     # a lost lock 8 mm off
+    policy = SearchInit(world.ctx)
+    assert policy.min_motion == pytest.approx(12.0)                 # 2 x the 3-sigma floor at 2 px
+    static = [0] * 40
+    n, policy = _confirmation(world, static, x_true, x_cur)
+    assert n == policy.gap and policy.candidate is None and policy.count == 1
+    moving = [0, 15, 30, 45, 60, 75]
+    a, b = _lines_by_features(world, world.joints(0), x_true), None
+    motion = [0.0]
+    for t in moving[1:]:
+        b = _lines_by_features(world, world.joints(t), x_true)
+        d = np.abs(b - a)
+        motion.append(max(motion[-1], float(np.max(d[:, 0] + d[:, 1] * policy.half_diagonal))))
+    first = next(i for i, m in enumerate(motion, start=1) if m >= policy.min_motion)
+    assert first <= policy.confirm          # the trajectory moves enough within confirm frames
+    n, policy = _confirmation(world, moving, x_true, x_cur)
+    assert n == policy.confirm
+    # adopted: the search re-run on that one frame, good to a few mm (the lock was 8 mm off)
+    assert np.linalg.norm(policy.result.x[:3] - x_true[:3]) < 6e-3

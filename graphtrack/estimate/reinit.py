@@ -38,6 +38,13 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   on the occluder's edges wins that frame; as the tool moves with its readings
   and the occluder does not, such a candidate loses the following frames. A
   correct lock is kept; a wrong or lost one is replaced ``confirm`` frames later.
+  The test has that power only once the tool has moved: it runs on (the
+  threshold confirm * margin becoming frames * margin) until the candidate's
+  projected shaft lines, x_c held fixed and the readings changing, have moved
+  ``min_motion`` px from where they were on its first frame (max over the two
+  edges of |d rho| + |d theta| times the half image diagonal; default twice
+  the likelihood's outlier floor, 2 * 3 * 2 px, beyond which a static occluder's
+  edges no longer count for the candidate), or ``gap`` frames have passed.
 - Innovation gate: while *locked* (``lock_frames`` consecutive frames the
   estimator used were explained, misfit <= ``lock_threshold``; a frame with a
   misfit between that and the threshold neither extends nor ends a lock), a
@@ -84,6 +91,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from graphtrack.estimate.divergence import DivergenceMonitor, misfit
+from graphtrack.estimate.pf.projection import project
 from graphtrack.estimate.startup import SIGMAS, Scorer, SearchResult, global_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 
@@ -117,6 +125,8 @@ class _Candidate:
     misfits: float = 0.0      # summed misfit of the candidate
     current: float = 0.0      # summed misfit of the current estimate
     frames: int = 0
+    first: np.ndarray | None = None   # (2, 2) its shaft lines (rho px, theta rad) on the first test frame
+    motion: float = 0.0       # px, the most those lines have moved since (module doc)
 
 
 class SearchInit:
@@ -127,7 +137,8 @@ class SearchInit:
                  markers: bool = True, margin: float = 5.0, seed: int = 0, monitor: bool = True,
                  n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE,
                  lock_threshold: float = 0.25, lock_frames: int = 10, innovation_gate: bool = True,
-                 motion_cov: np.ndarray | None = None, window: int = 0, **scorer_options):
+                 motion_cov: np.ndarray | None = None, window: int = 0, min_motion: float | None = None,
+                 **scorer_options):
         b, w = spread
         self.spread = np.array([b] * 3 + [w] * 3, float)
         self.gap = int(gap)
@@ -145,6 +156,10 @@ class SearchInit:
         self.monitor = DivergenceMonitor() if monitor else None
         self.lock_threshold = float(lock_threshold)
         self.innovation_gate = bool(innovation_gate)
+        o = self.scorer.shaft_options
+        self.min_motion = (2.0 * o["pixel_outlier_sigmas"] * o["pixel_sigma"] if min_motion is None
+                           else float(min_motion))   # px (module doc)
+        self.half_diagonal = 0.5 * float(np.hypot(ctx.camera.width, ctx.camera.height))
         self.lock_run = 0            # consecutive frames used and explained (misfit <= lock_threshold)
         self.lock_frames = int(lock_frames)
         self.rejected = False        # this frame is an outlier frame (module doc): predict through it
@@ -188,16 +203,30 @@ class SearchInit:
         c.misfits += m if np.isfinite(m) else 1.0
         c.current += m_cur if np.isfinite(m_cur) else 0.0
         c.frames += 1
-        if c.frames < self.confirm:
+        self._track_motion(c, q)
+        if c.frames < self.confirm or (c.motion < self.min_motion and c.frames < self.gap):
             return None
         threshold = self.threshold
         still_lost = c.current / c.frames > threshold
-        if still_lost and c.llr > self.confirm * self.margin and c.misfits / c.frames < threshold \
+        if still_lost and c.llr > c.frames * self.margin and c.misfits / c.frames < threshold \
                 and ll_c - ll_cur > self.margin:
             # confirmed: the mode is searched afresh on this frame, around the candidate
             return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
         self.candidate = None
         return None
+
+    def _track_motion(self, c: _Candidate, q) -> None:
+        """Update how far the candidate's projected shaft lines have moved from their
+        first test frame (module doc), px."""
+        h = project(self.scorer.frame_geometry(q), self.scorer.K, np.asarray(c.result.x, float)[None])
+        if not bool(h.valid[0]):
+            return
+        lines = np.stack([h.rho[:, 0], h.theta[:, 0]], -1)
+        if c.first is None:
+            c.first = lines
+            return
+        d = np.abs(lines - c.first)
+        c.motion = max(c.motion, float(np.max(d[:, 0] + d[:, 1] * self.half_diagonal)))
 
     @property
     def locked(self) -> bool:

@@ -82,7 +82,9 @@ class Scorer:
         self._buffers: dict = {}
         self._geometry = None
 
-    def _frame_geometry(self, q):
+    def frame_geometry(self, q):
+        """The frame's features mapped by E_ref (:func:`graphtrack.estimate.pf.projection.frame_geometry`),
+        cached for the last q."""
         q = np.asarray(q, float)
         if self._geometry is None or self._geometry[0] != q.tobytes():
             self._geometry = (q.tobytes(), frame_geometry(self.robot, q, self.E_ref))
@@ -107,7 +109,7 @@ class Scorer:
 
     def __call__(self, q, observation, x: np.ndarray, sigma: float | None = None) -> np.ndarray:
         """Log-likelihood (n,) of one frame (reading q, observation) for hypotheses x (n, 6)."""
-        h = project(self._frame_geometry(q), self.K, np.atleast_2d(np.asarray(x, float)))
+        h = project(self.frame_geometry(q), self.K, np.atleast_2d(np.asarray(x, float)))
         return self.loglik(h, observation, sigma)
 
     def with_floor(self, q, observation, x: np.ndarray, shift: float = 0.05,
