@@ -1,11 +1,13 @@
 """graphtrack.estimate.reinit: the innovation gate, the lock's covariance gate, the prior
-guard, the smoother's restart and the window challenge, on the synthetic world
+guard, the smoother's restart, the window challenge and the candidate test's motion
+requirement, on the synthetic world
 (tests/robust_world.py).
 
 Oracles: the lock gate against the quadratic form computed by hand; the gate's
 effect against the same run with the gate off (an occluder's edges pull an
 ungated estimator by millimetres, the gated one stays within the motion model's
-reach); the prior guard, the restart and the window challenge against the known true E.
+reach); the prior guard, the restart and the window challenge against the known true E;
+the candidate's motion against the robot's feature model.
 """
 from __future__ import annotations
 
@@ -15,10 +17,11 @@ import pytest
 from graphtrack.detect.base import Observation
 from graphtrack.estimate.divergence import misfit
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.reinit import LOCK_FLOOR, PRIOR_GATE, SearchInit
+from graphtrack.estimate.reinit import LOCK_FLOOR, PRIOR_GATE, SearchInit, _Candidate
+from graphtrack.estimate.startup import SearchResult
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 from graphtrack.io.frame import Frame
-from graphtrack.robot.features import base_features
+from graphtrack.robot.features import base_features, shaft_lines
 from robust_world import make_world
 
 MODEL = "line-intensities"
@@ -172,8 +175,6 @@ def test_window_challenge_runs_after_8_and_16_frames_used():
 def _lines_by_features(world, q, x):
     """(2, 2) shaft lines (rho px, theta rad) of E = Exp(x) . E_0 at reading q, through the
     robot's feature model (not the particle filter's batched projection the policy uses)."""
-    from graphtrack.robot.features import shaft_lines
-
     E = bw_to_matrix(x) @ world.ctx.handeye
     rho, theta, valid = shaft_lines(base_features(world.ctx.robot, q).transformed(E), world.ctx.camera.K)
     assert bool(valid)
@@ -183,9 +184,6 @@ def _lines_by_features(world, q, x):
 def _confirmation(world, times, x_cand, x_cur):
     """Run a candidate's sequential test over the frames ``times`` (observations of the
     true E); returns the frame count at which it adopted (None: never) and the policy."""
-    from graphtrack.estimate.reinit import _Candidate
-    from graphtrack.estimate.startup import SearchResult
-
     policy = SearchInit(world.ctx, seed=0)
     policy.candidate = _Candidate(SearchResult(x_cand, np.diag(SPREAD ** 2) * 1e-4, 0.0, 0.0))
     for n, t in enumerate(times, start=1):

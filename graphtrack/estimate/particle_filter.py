@@ -293,8 +293,8 @@ class ParticleFilter:
             a = np.sqrt(max(1.0 - self.roughening ** 2, 0.0))
             self.x = a * self.x + (1.0 - a) * mean
             C = self.roughening ** 2 * cov
-            # cap the jitter at the prior spread per axis (directions the data never
-            # constrain would otherwise inflate by (1 + roughening^2) per resampling)
+            # cap the jitter at the prior spread per axis: along directions the data never
+            # constrain, a cloud wider than the prior keeps only a^2 of its variance there
             s = np.sqrt(np.maximum(np.diag(C), 1e-300))
             D = np.minimum(1.0, self.init_std / s)
             C = D[:, None] * C * D[None, :] + np.diag((1e-3 * self.motion_std) ** 2)
