@@ -152,3 +152,31 @@ def test_a_parallel_edge_outside_the_search_window_does_not_pull():
                          config=SubpixelConfig(search=3.0))
     r, t = line_through(out[:2][None], out[2:][None])
     assert abs(line_difference(r[0], t[0], rho, theta)[0]) < 0.1
+
+
+def test_refinement_on_the_raw_frame_through_the_distortion_finds_the_undistorted_edge():
+    # oracle: a straight edge in undistorted pixels, drawn into the RAW image through the
+    # plumb-bob model (each raw pixel takes the undistorted image at its undistorted
+    # position, OpenCV's undistortPoints), so the raw edge is curved
+    from graphtrack.geometry.camera import Camera
+
+    K = np.array([[250.0, 0, 150], [0, 250.0, 100], [0, 0, 1]])
+    cam = Camera(K, np.array([-0.28, 0.09, 0.0005, -0.0004, 0.0]), 200, 300)
+    rho, theta = 250.0, 0.2
+    ss = 4                                               # the undistorted edge, 4x supersampled
+    fine = render_edge(rho * ss + (ss - 1) / 2 * (np.cos(theta) + np.sin(theta)), theta,
+                       shape=(200 * ss, 300 * ss), blur=0.8 * ss, ss=2)
+    ys, xs = np.mgrid[0:200, 0:300].astype(np.float32)
+    und = cam.undistort_pixels(np.stack([xs.ravel(), ys.ravel()], 1)).reshape(200, 300, 2)
+    mx, my = ((und + 0.5) * ss - 0.5).astype(np.float32).transpose(2, 0, 1)
+    raw = cv2.remap(fine, mx, my, cv2.INTER_AREA)
+    seg = _segment_on(rho, theta, -20.0, 120.0, shift=1.5, turn=0.008)
+    assert np.abs(cam.distort_pixels(seg.reshape(2, 2)) - seg.reshape(2, 2)).max() > 4.0  # it matters
+    out = refine_segments(raw, seg[None], camera=cam)[0]
+    r, t = line_through(out[:2][None], out[2:][None])
+    dr, dt = line_difference(r[0], t[0], rho, theta)
+    assert abs(dr) < 0.1 and abs(dt) < 1e-3
+    # without the camera the raw frame's curved edge is refined as if straight: worse
+    plain = refine_segments(raw, seg[None])[0]
+    r2, t2 = line_through(plain[:2][None], plain[2:][None])
+    assert abs(line_difference(r2[0], t2[0], rho, theta)[0]) > abs(dr)

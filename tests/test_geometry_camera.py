@@ -100,3 +100,24 @@ def test_scaled_undistort_samples_full_raw_image():
     m = cv2.moments(small.astype(np.float32))
     centre = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
     assert np.linalg.norm(centre - cam.scaled(0.5).project_undistorted(P)[0]) < 0.3
+
+
+def test_undistort_resized_is_opencvs_undistortion_of_the_reduced_camera():
+    """Resize-then-undistort: a raw frame resized by 1/4 and undistorted with the reduced
+    camera equals cv2.undistort with that camera's K and the same D (OpenCV's oracle),
+    and puts a dot at its undistorted pixel; D = 0 returns the image itself."""
+    cam = camera()
+    P = np.array([[0.03, -0.015, 0.1]])
+    raw = cam.project_raw(P)[0]
+    img = np.zeros((540, 960), np.uint8)
+    cv2.circle(img, (int(round(raw[0] * 16)), int(round(raw[1] * 16))), 8 * 16, 255, -1, shift=4)
+    small = cv2.resize(img, (240, 135), interpolation=cv2.INTER_AREA)
+    out = cam.undistort_resized(small)
+    ref = cv2.undistort(small, cam.scaled(0.25).K, cam.dist)
+    assert out.shape == (135, 240)
+    assert np.abs(out.astype(int) - ref.astype(int)).max() <= 2
+    m = cv2.moments(out.astype(np.float32))
+    centre = np.array([m["m10"] / m["m00"], m["m01"] / m["m00"]])
+    assert np.linalg.norm(centre - cam.scaled(0.25).project_undistorted(P)[0]) < 0.3
+    rect = Camera(K.copy(), np.zeros(5), 540, 960)
+    assert rect.undistort_resized(small) is small

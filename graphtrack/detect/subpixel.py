@@ -28,7 +28,9 @@ camera's and the gradient's blur merge into one peak and the refined line
 follows the stronger: a known limit of any gradient-peak locator.
 
 Coordinates are undistorted full-resolution pixels (pixel centres at
-integers, as everywhere in graphtrack). Decision and measurements:
+integers, as everywhere in graphtrack). The image is the undistorted one, or
+the raw one with its camera: the samples are then read through the
+distortion (:func:`edge_profiles`). Decision and measurements:
 docs/decisions/subpixel-edges.md.
 """
 from __future__ import annotations
@@ -92,11 +94,17 @@ class EdgeProfiles:
 
 
 def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0.0, 0.0),
-                  config: SubpixelConfig | None = None, toward=None) -> EdgeProfiles | None:
+                  config: SubpixelConfig | None = None, toward=None, camera=None) -> EdgeProfiles | None:
     """Sample the normal gradient across ``segment`` (module doc, step 2); None
     for a segment too short for ``min_samples`` rows. gx, gy: the gradient of a
     box whose top-left pixel is ``origin`` = (x0, y0) in image pixels; toward: a
-    point on the normal's side (the other edge of the shaft), or None."""
+    point on the normal's side (the other edge of the shaft), or None.
+
+    camera: gx, gy are the gradient of that camera's RAW image while the segment is in
+    undistorted pixels. Each sample p is then read at its raw pixel r(p) =
+    camera.distort_pixels(p), and the undistorted image's derivative along n is the
+    chain rule's grad_raw(r(p)) . (J n), J = dr/dp, J n by central difference over
+    1 px: the image is never undistorted."""
     cfg = config or SubpixelConfig()
     seg = np.asarray(segment, float).ravel()
     a, b = seg[:2], seg[2:4]
@@ -109,10 +117,15 @@ def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0
         n = -n
     s = np.arange(cfg.end_margin, length - cfg.end_margin + 1e-9, cfg.step)
     t = np.arange(-cfg.search, cfg.search + 1e-9, 0.5)
-    Q = a + s[:, None, None] * d + t[None, :, None] * n - np.asarray(origin, float)   # (S, T, 2) box px
+    Q = a + s[:, None, None] * d + t[None, :, None] * n                  # (S, T, 2) image px
+    dn = np.broadcast_to(n, Q.shape)
+    if camera is not None:
+        Q, dn = (camera.distort_pixels(Q),
+                 camera.distort_pixels(Q + 0.5 * n) - camera.distort_pixels(Q - 0.5 * n))
+    Q = Q - np.asarray(origin, float)                                        # box px
     mx, my = Q[..., 0].astype(np.float32), Q[..., 1].astype(np.float32)
-    g = (cv2.remap(gx, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * n[0]
-         + cv2.remap(gy, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * n[1])
+    g = (cv2.remap(gx, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * dn[..., 0]
+         + cv2.remap(gy, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * dn[..., 1])
     return EdgeProfiles(a, b, d, n, s, t, g)
 
 
@@ -178,9 +191,21 @@ def refine_segment(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(
     return fit_edge(p, p.polarity_votes() if polarity is None else polarity, config)
 
 
-def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelConfig | None = None) -> np.ndarray:
+def _box_points(segs: np.ndarray, camera) -> np.ndarray:
+    """Points (n, 2) whose bounding box, padded, holds every sample of the segments
+    (k, 4): their ends, or with ``camera`` 17 points along each taken to raw pixels."""
+    if camera is None:
+        return segs.reshape(-1, 2)
+    f = np.linspace(0.0, 1.0, 17)[None, :, None]
+    return camera.distort_pixels(segs[:, None, :2] + f * (segs[:, None, 2:] - segs[:, None, :2])).reshape(-1, 2)
+
+
+def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelConfig | None = None,
+                    camera=None) -> np.ndarray:
     """Every finite row of segments (k, 4) refined on the undistorted BGR / grey
-    ``image`` (rows the edge does not support are returned as they were)."""
+    ``image`` (rows the edge does not support are returned as they were). camera:
+    ``image`` is that camera's RAW frame, the segments and the result are in its
+    undistorted pixels (sampled through the distortion, :func:`edge_profiles`)."""
     cfg = config or SubpixelConfig()
     segs = np.asarray(segments, float).reshape(-1, 4).copy()
     ok = np.all(np.isfinite(segs), axis=1)
@@ -189,7 +214,10 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
     img = np.asarray(image)
     h, w = img.shape[:2]
     pad = cfg.search + 3.0 * max(cfg.blur, 0.5) + 2.0
-    xs, ys = segs[ok][:, 0::2], segs[ok][:, 1::2]
+    if camera is not None:
+        pad *= 1.5                   # the distortion stretches the +-search window locally
+    pts = _box_points(segs[ok], camera)
+    xs, ys = pts[:, 0], pts[:, 1]
     x0, y0 = max(int(np.floor(xs.min() - pad)), 0), max(int(np.floor(ys.min() - pad)), 0)
     x1, y1 = min(int(np.ceil(xs.max() + pad)) + 1, w), min(int(np.ceil(ys.max() + pad)) + 1, h)
     if x1 - x0 < 3 or y1 - y0 < 3:
@@ -204,7 +232,7 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
     # the shaft's two edges: normals point into the shaft (toward the other edge's
     # midpoint), and one polarity, voted by both, serves both edges
     toward = {int(i): mid[int(idx[1 - j])] for j, i in enumerate(idx)} if len(idx) == 2 else {}
-    prof = {int(i): edge_profiles(gx, gy, segs[i], (x0, y0), cfg, toward.get(int(i))) for i in idx}
+    prof = {int(i): edge_profiles(gx, gy, segs[i], (x0, y0), cfg, toward.get(int(i)), camera) for i in idx}
     joint = None
     if len(toward) == 2 and all(p is not None for p in prof.values()):
         joint = 1.0 if sum(p.polarity_votes() for p in prof.values()) >= 0 else -1.0
