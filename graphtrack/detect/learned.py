@@ -7,16 +7,10 @@ SOLD2's two outputs, segments and a line heatmap H, at camera rate:
 1. the undistorted BGR frame (H x W) is resized by ``scale`` (1/4: 540x960 ->
    135x240, cv2.INTER_AREA) and fed to the net, which returns the line
    heatmap L and the junction (endpoint) heatmap J at that size (sigmoids);
-2. segments are extracted at the reduced scale: probabilistic Hough
-   (cv2.HoughLinesP) on {L >= line_threshold} proposes candidates; each is
-   refined by a heatmap-weighted total-least-squares line fit to the
-   above-threshold pixels within ``fit_band`` px of it, grown along the fitted
-   line over all such pixels (split at gaps > ``max_gap``: the run holding the
-   candidate's centre) and refitted; its extent is that of its supporting
-   pixels, and each endpoint snaps to a junction peak (3x3 local maximum of
-   J >= junction_threshold) within ``snap`` px of it along the line;
-   near-duplicates (angle < 0.05 rad, offset < 2 px, overlapping) keep the
-   best supported one;
+   given a RAW frame and its camera (``detect(..., camera=)``, what the tracking
+   pipeline does), the frame is resized first and undistorted at 1/4 size;
+2. segments are extracted at the reduced scale
+   (:func:`graphtrack.detect.segments.extract_segments`);
 3. segments go back to full-resolution undistorted pixels,
    x = (x_s + 0.5) / scale_x - 0.5 (pixel centres, OpenCV's resize
    convention), and H is L upsampled to H x W with cv2.INTER_LINEAR (the same
@@ -43,9 +37,9 @@ docs/decisions/subpixel-edges.md.
 """
 from __future__ import annotations
 
+import copy
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -56,26 +50,12 @@ from graphtrack.detect.association import AssociationConfig, associate
 from graphtrack.detect.base import Detection
 from graphtrack.detect.learned_net import ARCH, LineNet
 from graphtrack.detect.markers import MarkerConfig, detect_markers
+from graphtrack.detect.segments import ExtractConfig, extract_segments
 from graphtrack.detect.subpixel import SubpixelConfig, refine_segments
 from graphtrack.errors import InputError
 from graphtrack.geometry.lines import line_through
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "data" / "learned_detector.pt"
-
-
-@dataclass
-class ExtractConfig:
-    """Segment extraction at the reduced scale (px of the reduced image)."""
-
-    line_threshold: float = 0.5       #: L >= this is a line pixel
-    junction_threshold: float = 0.3   #: J peaks above this are junctions
-    hough_votes: int = 12             #: cv2.HoughLinesP threshold
-    min_length: float = 8.0           #: px (reduced), shorter segments dropped
-    max_gap: float = 4.0              #: px (reduced), HoughLinesP maxLineGap
-    fit_band: float = 1.5             #: px (reduced), pixels used by the line fit
-    min_support: int = 8              #: supporting pixels needed
-    snap: float = 3.0                 #: px (reduced), endpoint-to-junction snap radius
-    max_segments: int = 32
 
 
 def load_weights(path: str | Path | None = None):
@@ -112,18 +92,22 @@ _TRACED: dict = {}
 
 
 def traced_net(net, key, shape: tuple[int, int]):
-    """The fused ``net`` traced by torch.jit and frozen, cached under ``key``; None when
-    tracing fails (the caller keeps the eager net).
+    """The fused ``net`` traced by torch.jit and frozen, in channels-last memory
+    format, cached under ``key``; None when tracing fails (the caller keeps the eager net).
 
-    The same conv kernels without the modules' Python overhead: 4.4 vs 5.9 ms per
-    135x240 image on one core, outputs bit-identical to the eager net
-    (tests/test_learned_detector.py). The decoder's sizes are traced as operations, so
-    the trace serves any input size."""
+    The same conv kernels without the modules' Python overhead, and channels-last
+    (NHWC) convolutions, which oneDNN runs faster on one core for this net's depthwise
+    and 1x1 layers: 4.9 vs 7.1 ms (traced NCHW) per 135x240 image, outputs equal to the
+    eager net's to 1e-5 (tests/test_learned_detector.py; docs/decisions/stereo-detection.md).
+    Feed it ``channels_last`` input (any layout is correct, NHWC is the fast one). The
+    decoder's sizes are traced as operations, so the trace serves any input size."""
     if key not in _TRACED:
         try:
             with warnings.catch_warnings(), torch.inference_mode():
                 warnings.simplefilter("ignore")   # torch.jit is deprecated, still supported
-                _TRACED[key] = torch.jit.freeze(torch.jit.trace(net, torch.zeros(1, 3, *shape)))
+                nhwc = copy.deepcopy(net).to(memory_format=torch.channels_last)
+                x = torch.zeros(1, 3, *shape).contiguous(memory_format=torch.channels_last)
+                _TRACED[key] = torch.jit.freeze(torch.jit.trace(nhwc, x))
         except Exception:  # noqa: BLE001 - any tracing failure: run the eager net
             _TRACED[key] = None
     return _TRACED[key]
@@ -145,148 +129,11 @@ def check_meta(meta: dict, path: Path) -> tuple[int, int]:
     return out[0], out[1]
 
 
-def _tls(Q: np.ndarray, wq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted total-least-squares line: (centroid, unit direction)."""
-    c = (wq[:, None] * Q).sum(0) / wq.sum()
-    X = Q - c
-    _, evecs = np.linalg.eigh((wq[:, None] * X).T @ X)
-    return c, evecs[:, 1]
-
-
-def _junction_peaks(J: np.ndarray, thr: float) -> np.ndarray:
-    """(n, 2) (x, y) of 3x3 local maxima of J >= thr (reduced px)."""
-    dil = cv2.dilate(J, np.ones((3, 3), np.uint8))
-    ys, xs = np.nonzero((J >= thr) & (J >= dil))
-    return np.stack([xs, ys], 1).astype(float)
-
-
-def _grow_and_fit(P: np.ndarray, w: np.ndarray, a: np.ndarray, b: np.ndarray, cfg: ExtractConfig):
-    """One Hough candidate a -> b refined (module doc, step 2): (centroid c, unit
-    direction u, supporting pixels' indices into P) of the refitted line, or None."""
-    d = b - a
-    n = np.hypot(*d)
-    if n < 1e-9:
-        return None
-    d /= n
-    nrm = np.array([-d[1], d[0]])
-    Pa = P - a
-    r = Pa @ nrm
-    t = Pa @ d
-    sel = (np.abs(r) <= cfg.fit_band) & (t >= -cfg.max_gap) & (t <= n + cfg.max_gap)
-    if np.count_nonzero(sel) < cfg.min_support:
-        return None
-    c, u = _tls(P[sel], w[sel])
-    # grow along the fitted line: all pixels in the band, split at gaps,
-    # keep the run holding the candidate's centre (else the longest), refit
-    X = P - c
-    band = np.abs(X @ np.array([-u[1], u[0]])) <= cfg.fit_band
-    tq = X[band] @ u
-    order = np.argsort(tq)
-    ts = tq[order]
-    gaps = np.flatnonzero(ts[1:] - ts[:-1] > cfg.max_gap)
-    starts = np.concatenate(([0], gaps + 1))
-    ends = np.concatenate((gaps, [len(ts) - 1]))
-    tc = (0.5 * (a + b) - c) @ u
-    hold = np.flatnonzero((ts[starts] <= tc) & (ts[ends] >= tc))
-    k = int(hold[0]) if len(hold) else int(np.argmax(ts[ends] - ts[starts]))
-    cnt = ends[k] - starts[k] + 1
-    if ts[ends[k]] - ts[starts[k]] < cfg.min_length or cnt < cfg.min_support:
-        return None
-    run = np.flatnonzero(band)[order[starts[k]:ends[k] + 1]]
-    c, u = _tls(P[run], w[run])
-    return c, u, run
-
-
-def _snap(e: np.ndarray, c: np.ndarray, u: np.ndarray, peaks: np.ndarray, cfg: ExtractConfig) -> np.ndarray:
-    """Endpoint e on the line (c, u) moved to the projection of the nearest junction
-    peak within ``snap`` px (and ``fit_band`` + 0.5 px of the line); else e."""
-    dp = peaks - e
-    along = dp @ u
-    perp = np.abs(dp @ np.array([-u[1], u[0]]))
-    ok = (np.hypot(along, perp) <= cfg.snap) & (perp <= cfg.fit_band + 0.5)
-    if not ok.any():
-        return e
-    j = np.flatnonzero(ok)[np.argmin(np.hypot(along, perp)[ok])]
-    return c + ((peaks[j] - c) @ u) * u  # project onto the fitted line
-
-
-def _duplicate(S: np.ndarray, i: int, keep: list[int]) -> bool:
-    """Segment i near-duplicates a kept one: angle < 0.05 rad, midpoint < 2 px from
-    its line, overlapping by more than 0.3 of the shorter."""
-    a, b = S[i, :2], S[i, 2:]
-    mid = 0.5 * (a + b)
-    di = (b - a) / max(np.hypot(*(b - a)), 1e-9)
-    for j in keep:
-        aj, bj = S[j, :2], S[j, 2:]
-        dj = (bj - aj) / max(np.hypot(*(bj - aj)), 1e-9)
-        if abs(di @ dj) < np.cos(0.05):
-            continue
-        nj = np.array([-dj[1], dj[0]])
-        if abs((mid - aj) @ nj) > 2.0:
-            continue
-        ta, tb = sorted(((a - aj) @ dj, (b - aj) @ dj))
-        lj = np.hypot(*(bj - aj))
-        if min(tb, lj) - max(ta, 0.0) > 0.3 * min(tb - ta, lj):
-            return True
-    return False
-
-
-def extract_segments(L: np.ndarray, J: np.ndarray | None = None,
-                     config: ExtractConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Segments (S, 4) (x1, y1, x2, y2) and their support (S,) from a line
-    heatmap L (h, w) in [0, 1] and an optional junction heatmap J, in the
-    heatmaps' own pixels (see the module doc, step 2)."""
-    cfg = config or ExtractConfig()
-    L = np.asarray(L, np.float32)
-    empty = np.zeros((0, 4)), np.zeros(0)
-    if L.ndim != 2 or min(L.shape) < 2:
-        return empty
-    mask = (L >= cfg.line_threshold).astype(np.uint8)
-    ys, xs = np.nonzero(mask)
-    if len(xs) < cfg.min_support:
-        return empty
-    hl = cv2.HoughLinesP(mask, 1, np.pi / 180, cfg.hough_votes, minLineLength=cfg.min_length,
-                         maxLineGap=cfg.max_gap)
-    if hl is None:
-        return empty
-    cand = hl.reshape(-1, 4).astype(float)
-    cand = cand[np.argsort(-np.hypot(cand[:, 2] - cand[:, 0], cand[:, 3] - cand[:, 1]), kind="stable")]
-    cand = cand[: 4 * cfg.max_segments]
-    P = np.stack([xs, ys], 1).astype(float)
-    w = L[ys, xs].astype(float)
-    peaks = _junction_peaks(np.asarray(J, np.float32), cfg.junction_threshold) if J is not None \
-        else np.zeros((0, 2))
-    out, support = [], []
-    for x1, y1, x2, y2 in cand:
-        fit = _grow_and_fit(P, w, np.array([x1, y1]), np.array([x2, y2]), cfg)
-        if fit is None:
-            continue
-        c, u, run = fit
-        tq = (P[run] - c) @ u
-        e0, e1 = c + float(tq.min()) * u, c + float(tq.max()) * u
-        if len(peaks):
-            e0, e1 = _snap(e0, c, u, peaks, cfg), _snap(e1, c, u, peaks, cfg)
-        out.append(np.concatenate((e0, e1)))
-        support.append(float(w[run].sum()))
-    if not out:
-        return empty
-    S = np.array(out)
-    sup = np.array(support)
-    order = np.argsort(-sup, kind="stable")
-    S, sup = S[order], sup[order]
-    keep: list[int] = []
-    for i in range(len(S)):
-        if not _duplicate(S, i, keep):
-            keep.append(i)
-        if len(keep) >= cfg.max_segments:
-            break
-    return S[keep], sup[keep]
-
-
 class LearnedDetector:
     """``make_detector("learned", weights=None)``: see the module doc."""
 
     name = "learned"
+    raw_input = True   #: detect(raw, ..., camera=...) works on raw frames (Pipeline uses it)
 
     def __init__(self, weights: str | Path | None = None, scale: float = 0.25, markers: bool = True,
                  extract: ExtractConfig | None = None, association: AssociationConfig | None = None,
@@ -307,9 +154,11 @@ class LearnedDetector:
         if threads is not None:
             torch.set_num_threads(int(threads))
 
-    def heatmaps(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def heatmaps(self, image: np.ndarray, camera=None) -> tuple[np.ndarray, np.ndarray] | None:
         """(L, J) at the reduced scale for an undistorted BGR frame, or None
-        when the frame is too small or uniform."""
+        when the frame is too small or uniform. camera: ``image`` is that camera's
+        RAW frame; it is resized, then undistorted at the reduced size
+        (:meth:`graphtrack.geometry.camera.Camera.undistort_resized`)."""
         img = np.asarray(image)
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
@@ -322,25 +171,42 @@ class LearnedDetector:
         if min(hs, ws) < 8:
             return None
         small = cv2.resize(img[:, :, :3], (ws, hs), interpolation=cv2.INTER_AREA)
+        if camera is not None:
+            small = camera.undistort_resized(small)
         if float(small.std()) < self.min_contrast:
             return None
         x = torch.from_numpy(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).permute(2, 0, 1)[None].float() / 255.0
+        x = x.contiguous(memory_format=torch.channels_last)   # HWC pixels are already NHWC
         if self._infer is None:
             self._infer = traced_net(self.net, self._net_key, small.shape[:2]) or self.net
         with torch.inference_mode():
             y = torch.sigmoid(self._infer(x))[0].numpy()
         return y[0], y[1]
 
+    def _markers(self, img: np.ndarray, camera) -> np.ndarray:
+        """Marker centres (M, 2) in undistorted pixels (found on the raw frame with ``camera``)."""
+        if not self.markers or img.ndim != 3:
+            return np.zeros((0, 2))
+        markers = detect_markers(img, self.marker_config)
+        return camera.undistort_pixels(markers) if camera is not None and len(markers) else markers
+
     def detect(self, image: np.ndarray, predicted_lines: np.ndarray | None = None,
-               association: AssociationConfig | None = None) -> Detection:
+               association: AssociationConfig | None = None, camera=None) -> Detection:
         """Detect on an undistorted BGR uint8 frame; ``predicted_lines`` (2, 2) gate the
-        association, ``association`` overrides the configured gates for this call."""
+        association, ``association`` overrides the configured gates for this call.
+
+        camera (a :class:`graphtrack.geometry.camera.Camera` of the frame's size):
+        ``image`` is its RAW frame and the detection is in its undistorted pixels, made
+        without undistorting the whole frame: the net's input is undistorted at the
+        reduced size, markers are found on the raw frame and their centres undistorted,
+        the sub-pixel refinement reads the raw frame through the distortion. Why:
+        docs/decisions/stereo-detection.md."""
         t0 = time.perf_counter()
         img = np.asarray(image)
-        markers = np.zeros((0, 2))
-        if self.markers and img.ndim == 3:
-            markers = detect_markers(img, self.marker_config)
-        maps = self.heatmaps(img)
+        if camera is not None and not np.any(np.ravel(camera.dist)):
+            camera = None                 # no distortion: raw pixels are undistorted ones
+        markers = self._markers(img, camera)
+        maps = self.heatmaps(img, camera)
         if maps is None:
             H = None
             if img.ndim >= 2 and min(img.shape[:2]) >= 1:
@@ -357,19 +223,23 @@ class LearnedDetector:
         H = cv2.resize(L, (w, h), interpolation=cv2.INTER_LINEAR)
         det = Detection(segments=seg, heatmap=H, markers=markers)
         if len(seg):
-            rho, theta = line_through(seg[:, :2], seg[:, 2:])
-            lines = np.stack([rho, theta], 1)
-            assoc = associate(lines, seg, predicted_lines, association or self.association)
-            det.shaft_segments = assoc.segments
-            det.shaft_lines = assoc.lines
-            det.edge_ids = assoc.edge_ids
-            if self.subpixel is not None and len(assoc.segments):
-                refined = refine_segments(img, assoc.segments, self.subpixel)
-                moved = np.all(np.isfinite(refined), axis=1) & np.any(refined != assoc.segments, axis=1)
-                if moved.any():
-                    rho, theta = line_through(refined[moved, :2], refined[moved, 2:])
-                    det.shaft_segments = refined
-                    det.shaft_lines = assoc.lines.copy()
-                    det.shaft_lines[moved] = np.stack([rho, theta], 1)
+            self._shaft(det, img, predicted_lines, association or self.association, camera)
         det.ms = (time.perf_counter() - t0) * 1e3
         return det
+
+    def _shaft(self, det: Detection, img: np.ndarray, predicted_lines, association, camera) -> None:
+        """The shaft edges of ``det``: associated segments, moved onto the image's edge."""
+        rho, theta = line_through(det.segments[:, :2], det.segments[:, 2:])
+        assoc = associate(np.stack([rho, theta], 1), det.segments, predicted_lines, association)
+        det.shaft_segments = assoc.segments
+        det.shaft_lines = assoc.lines
+        det.edge_ids = assoc.edge_ids
+        if self.subpixel is None or not len(assoc.segments):
+            return
+        refined = refine_segments(img, assoc.segments, self.subpixel, camera)
+        moved = np.all(np.isfinite(refined), axis=1) & np.any(refined != assoc.segments, axis=1)
+        if moved.any():
+            rho, theta = line_through(refined[moved, :2], refined[moved, 2:])
+            det.shaft_segments = refined
+            det.shaft_lines = assoc.lines.copy()
+            det.shaft_lines[moved] = np.stack([rho, theta], 1)

@@ -11,6 +11,7 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 
 from graphtrack.detect import make_detector, observe
@@ -148,15 +149,26 @@ class Pipeline:
             return None
         return dataclasses.replace(base, max_offset=float(widest))
 
-    def _image(self, image: np.ndarray, camera, lines, gate, ms: dict):
+    def _image(self, image: np.ndarray, camera, detect_camera, lines, gate, ms: dict):
         """Undistort, detect and observe one image; (Detection, Observation) in
-        full-size pixels; adds the stages' milliseconds to ``ms``."""
+        full-size pixels; adds the stages' milliseconds to ``ms``.
+
+        A detector that reads raw frames (``raw_input``, the learned one) gets the raw
+        image, resized to the detection size (cv2.INTER_AREA), and ``detect_camera``,
+        and undistorts only what it uses; the others get the undistorted image."""
         det = self.options.detection
         t = time.perf_counter()
-        und = camera.undistort(image, self.scale)
+        raw = getattr(self.detector, "raw_input", False)
+        if not raw:
+            img = camera.undistort(image, self.scale)
+        elif self.scale != 1.0:
+            img = cv2.resize(image, (detect_camera.width, detect_camera.height), interpolation=cv2.INTER_AREA)
+        else:
+            img = image
         ms["undistort"] = ms.get("undistort", 0.0) + 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
-        detection = self.detector.detect(und, lines, gate)
+        detection = (self.detector.detect(img, lines, gate, camera=detect_camera) if raw
+                     else self.detector.detect(img, lines, gate))
         ms["detect"] = ms.get("detect", 0.0) + 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
         observation = observe.make_observation(detection, self.options.observation, alpha=det.alpha,
@@ -172,10 +184,10 @@ class Pipeline:
         self.right = (None, None)
         if self.needs_images:
             gate = self.gate(frame)
-            detection, observation = self._image(frame.image, self.ctx.camera, self.predicted_lines(frame),
-                                                 gate, ms)
+            detection, observation = self._image(frame.image, self.ctx.camera, self.detect_camera,
+                                                 self.predicted_lines(frame), gate, ms)
             if self.stereo and frame.image_right is not None:
-                self.right = self._image(frame.image_right, self.ctx.right,
+                self.right = self._image(frame.image_right, self.ctx.right, self.detect_right,
                                          self.predicted_lines(frame, right=True), gate, ms)
             elif self.stereo:
                 self.left_only += 1
