@@ -44,6 +44,15 @@ def _num(x) -> str:
     return repr(round(x, 4)) if np.isfinite(x) else "nan"
 
 
+def _detect(det, image, camera, predicted):
+    """Detection in ``camera``'s undistorted pixels, as tracking makes it: a detector that
+    reads raw frames (``raw_input``) gets the raw image and the camera, the others the
+    undistorted image."""
+    if getattr(det, "raw_input", False):
+        return det.detect(image, predicted, camera=camera)
+    return det.detect(camera.undistort(image), predicted)
+
+
 def _predicted(rec, q, E: np.ndarray, K: np.ndarray):
     """The shaft edges (2, 2) predicted through camera-from-base E and K (None: unknown)."""
     if len(q) != rec.robot.n_joints or not np.all(np.isfinite(q)) or not rec.robot.shaft_features:
@@ -111,22 +120,21 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             if isinstance(item, FrameError) or item.image is None:
                 skipped += 1
                 continue
-            und = ctx.camera.undistort(item.image)
             t = time.perf_counter()
-            d = det.detect(und, _predicted(rec, item.q, ctx.handeye, ctx.camera.K))
+            d = _detect(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K))
             ms = d.ms if d.ms else 1e3 * (time.perf_counter() - t)
             ms_all.append(ms)
-            w.writerow(_row(item.index, d, und.shape[:2], alpha, beta, ms))
+            w.writerow(_row(item.index, d, item.image.shape[:2], alpha, beta, ms))
             f.flush()
             if wr is not None and item.image_right is not None:
-                und_r = rec.calibration.undistort_right(item.image_right)
+                right = rec.calibration.right
                 t = time.perf_counter()
-                d_r = det.detect(und_r, _predicted(rec, item.q, E_right, rec.calibration.right.K))
-                wr.writerow(_row(item.index, d_r, und_r.shape[:2], alpha, beta,
+                d_r = _detect(det, item.image_right, right, _predicted(rec, item.q, E_right, right.K))
+                wr.writerow(_row(item.index, d_r, item.image_right.shape[:2], alpha, beta,
                                  d_r.ms if d_r.ms else 1e3 * (time.perf_counter() - t)))
             if writer is not None:
                 obs = make_observation(d, "line-intensities", alpha=alpha, beta=beta, use_markers=True)
-                writer.write(draw_detection(und, d, obs), item.stamp)
+                writer.write(draw_detection(ctx.camera.undistort(item.image), d, obs), item.stamp)
     if writer is not None:
         writer.close()
     if right_csv is not None:
