@@ -42,7 +42,7 @@ def test_stereo_smoother_nees_over_independent_runs():
     """Monte-Carlo NEES of the stereo smoother (both images' pixels and markers on the
     same E_t; matched noise model as the mono NEES test): 30 runs, one value each at
     frame 40; the mean within a loose band around the chi2(6) one of 30 values
-    ([4.87, 7.25]): the figure of 100 runs is in docs/decisions/stereo-detection.md."""
+    ([4.87, 7.25]); the figure of 100 runs is in docs/decisions/nees-over-independent-runs.md."""
     from graphtrack.estimate.smoother import FixedLagSmootherEstimator
     from graphtrack.eval.consistency import monte_carlo_nees, nees_band
 
