@@ -25,9 +25,24 @@ def _ridge(L, a, b, width):
              cv2.LINE_AA, shift=4)
 
 
+def test_tls_direction_is_the_principal_eigenvector_of_the_weighted_scatter():
+    # oracle: numpy's symmetric eigensolver on the weighted scatter matrix
+    rng = np.random.default_rng(0)
+    for k in range(20):
+        a = rng.uniform(-np.pi, np.pi)
+        Q = (rng.normal(size=(60, 2)) * [8.0, 0.7]) @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]) + 40
+        w = rng.random(60)
+        c, u = segments._tls(Q, w)
+        c0 = (w[:, None] * Q).sum(0) / w.sum()
+        _, ev = np.linalg.eigh((w[:, None] * (Q - c0)).T @ (Q - c0))
+        assert np.allclose(c, c0, atol=1e-12)
+        assert min(np.abs(u - ev[:, 1]).max(), np.abs(u + ev[:, 1]).max()) < 1e-12
+
+
 def test_a_thick_ridge_is_fitted_once_and_a_parallel_line_beside_it_is_kept(monkeypatch):
-    # a 5-px ridge makes HoughLinesP propose several candidates along it; a second ridge
-    # 6 px beside it (beyond fit_band of the first) is another line and must be kept
+    # a 5-px ridge makes HoughLinesP propose several candidates along it: the ones on
+    # the line already fitted are not fitted again; a second ridge 6 px beside it
+    # (beyond fit_band of the first) is another line and must be kept
     L = np.zeros((135, 240), np.float32)
     _ridge(L, (20.0, 30.0), (220.0, 90.0), 5)
     _ridge(L, (20.0, 50.0), (220.0, 110.0), 1)

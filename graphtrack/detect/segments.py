@@ -39,11 +39,17 @@ class ExtractConfig:
 
 
 def _tls(Q: np.ndarray, wq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted total-least-squares line: (centroid, unit direction)."""
-    c = (wq[:, None] * Q).sum(0) / wq.sum()
-    X = Q - c
-    _, evecs = np.linalg.eigh((wq[:, None] * X).T @ X)
-    return c, evecs[:, 1]
+    """Weighted total-least-squares line: (centroid, unit direction).
+
+    The direction is the principal eigenvector of the weighted scatter
+    [[sxx, sxy], [sxy, syy]], in closed form at the angle 0.5 atan2(2 sxy, sxx - syy)
+    (a 2x2 eigh costs ~20 us in numpy's call overhead, and this runs per candidate)."""
+    sw = wq.sum()
+    c = np.array([wq @ Q[:, 0], wq @ Q[:, 1]]) / sw
+    dx, dy = Q[:, 0] - c[0], Q[:, 1] - c[1]
+    wx = wq * dx
+    phi = 0.5 * np.arctan2(2.0 * (wx @ dy), wx @ dx - (wq * dy) @ dy)
+    return c, np.array([np.cos(phi), np.sin(phi)])
 
 
 def _junction_peaks(J: np.ndarray, thr: float) -> np.ndarray:
