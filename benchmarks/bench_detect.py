@@ -6,8 +6,9 @@
 For each scene (structured, tissue) one plain (not randomised) recording of
 FRAMES frames at 540x960 is simulated with seed SEEDS[scene] (the learned
 detector's training recordings use seeds >= 100000 and are randomised 3 in 4);
-each frame is undistorted and given to every detector (canny, learned, and
-sold2 when a checkpoint is given) twice:
+each raw frame is given to every detector (canny, learned, and sold2 when a
+checkpoint is given) as tracking gives it (``detect_raw``: undistorted for
+canny and sold2, raw with its camera for the learned one), twice:
 
 - free: no prediction (the association's pair search);
 - gated: with a prediction = the true limb lines, perturbed by N(0, 5 px) in
@@ -107,6 +108,7 @@ def _detectors(sold2=None, weights=None) -> dict:
 
 def _standard(dets: dict, frames: int, log) -> dict:
     """The plain recordings SEEDS: {detector: {scene: {mode: figures}}}."""
+    from graphtrack.detect import detect_raw
     from graphtrack.robot.features import base_features, shaft_lines
     from graphtrack.sim.simulate import Simulation
 
@@ -117,14 +119,14 @@ def _standard(dets: dict, frames: int, log) -> dict:
         rng = np.random.default_rng(seed)
         acc = {(n, m): {"both": 0, "err": [], "ms": [], "n": 0} for n in dets for m in ("free", "gated")}
         for i in range(frames):
-            und = cam.undistort(sim.render(i)[0])
+            raw = sim.render(i)[0]
             rho, th, ok = shaft_lines(base_features(sim.robot, sim.q_read[i]).transformed(sim.E_t[i]), cam.K)
             if not ok:
                 continue
             pred = np.stack([rho + rng.normal(0, 5.0, 2), th + rng.normal(0, 0.03, 2)], 1)
             for name, det in dets.items():
                 for mode, p in (("free", None), ("gated", pred)):
-                    d = det.detect(und, p)
+                    d = detect_raw(det, raw, cam, p)
                     a = acc[(name, mode)]
                     e = _errors(d.shaft_lines, rho, th)
                     a["n"] += 1
@@ -161,6 +163,7 @@ def _category(vis: np.ndarray, hidden: float) -> str:
 def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
     """The held-out randomized recordings: {detector: {category: {mode: figures}}} + counts."""
     from graphtrack.robot.features import base_features, shaft_lines
+    from graphtrack.detect import detect_raw
     from graphtrack.sim.scene import SCENES
     from graphtrack.sim.simulate import Simulation
 
@@ -176,14 +179,14 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                 counts[cat] += 1
                 if cat == "marginal":
                     continue
-                und = cam.undistort(sim.render(i)[0])
+                raw = sim.render(i)[0]
                 rho, th, ok = shaft_lines(base_features(sim.robot, sim.q_read[i]).transformed(sim.E_t[i]), cam.K)
                 pred = np.stack([rho + rng.normal(0, 5.0, 2), th + rng.normal(0, 0.03, 2)], 1) if ok else None
                 for name, det in dets.items():
                     for mode, p in (("free", None), ("gated", pred)):
                         if mode == "gated" and p is None:
                             continue
-                        d = det.detect(und, p)
+                        d = detect_raw(det, raw, cam, p)
                         a = acc.setdefault((name, cat, mode), {"both": 0, "err": [], "ms": [], "n": 0, "false": 0})
                         a["n"] += 1
                         a["ms"].append(d.ms)

@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from graphtrack.commands.track import FORMATTER, add_detection_arguments
-from graphtrack.detect import make_detector
+from graphtrack.detect import detect_raw, make_detector
 from graphtrack.detect.draw import draw_detection
 from graphtrack.detect.observe import make_observation
 from graphtrack.detect.options import DetectionOptions
@@ -42,15 +42,6 @@ from graphtrack.robot.features import base_features, shaft_lines
 def _num(x) -> str:
     x = float(x)
     return repr(round(x, 4)) if np.isfinite(x) else "nan"
-
-
-def _detect(det, image, camera, predicted):
-    """Detection in ``camera``'s undistorted pixels, as tracking makes it: a detector that
-    reads raw frames (``raw_input``) gets the raw image and the camera, the others the
-    undistorted image."""
-    if getattr(det, "raw_input", False):
-        return det.detect(image, predicted, camera=camera)
-    return det.detect(camera.undistort(image), predicted)
 
 
 def _predicted(rec, q, E: np.ndarray, K: np.ndarray):
@@ -121,7 +112,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
                 skipped += 1
                 continue
             t = time.perf_counter()
-            d = _detect(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K))
+            d = detect_raw(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K))
             ms = d.ms if d.ms else 1e3 * (time.perf_counter() - t)
             ms_all.append(ms)
             w.writerow(_row(item.index, d, item.image.shape[:2], alpha, beta, ms))
@@ -129,7 +120,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             if wr is not None and item.image_right is not None:
                 right = rec.calibration.right
                 t = time.perf_counter()
-                d_r = _detect(det, item.image_right, right, _predicted(rec, item.q, E_right, right.K))
+                d_r = detect_raw(det, item.image_right, right, _predicted(rec, item.q, E_right, right.K))
                 wr.writerow(_row(item.index, d_r, item.image_right.shape[:2], alpha, beta,
                                  d_r.ms if d_r.ms else 1e3 * (time.perf_counter() - t)))
             if writer is not None:

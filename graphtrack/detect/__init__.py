@@ -1,4 +1,4 @@
-"""Shaft-edge and marker detection on undistorted frames, and the method's pixel sets.
+"""Shaft-edge and marker detection in undistorted pixels, and the method's pixel sets.
 
 - :mod:`.base`: Detection / Observation contracts, OBSERVATION_MODELS;
 - :mod:`.canny`: the Canny + Hough baseline (:mod:`.hough`: oriented Hough
@@ -19,7 +19,7 @@ from __future__ import annotations
 import importlib
 
 from graphtrack.detect.association import Association, AssociationConfig, associate
-from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS, Detection, Detector, Observation
+from graphtrack.detect.base import OBSERVATION_MODELS, POLAR_MODELS, Detection, Detector, Observation, detect_raw
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.observe import make_observation
 from graphtrack.detect.pixel_sets import endpoint_set, endpoints_set, line_set
@@ -66,7 +66,7 @@ def make_detector(name: str, **kwargs) -> Detector:
 __all__ = [
     "Association", "AssociationConfig", "DETECTORS", "Detection", "Detector", "MarkerConfig",
     "OBSERVATION_MODELS", "Observation", "POLAR_MODELS", "RansacConfig", "associate",
-    "available_detectors", "best_line", "detect_markers", "endpoint_set", "endpoints_set",
+    "available_detectors", "best_line", "detect_markers", "detect_raw", "endpoint_set", "endpoints_set",
     "fit_line_tls", "line_set", "make_detector", "make_observation", "register_detector",
     "sequential_ransac",
 ]

@@ -109,5 +109,19 @@ class Detector(Protocol):
         (rho, theta) of the shaft edges projected from the current estimate of
         E, used to gate the association (None: no gate); association: an
         :class:`graphtrack.detect.association.AssociationConfig` overriding the
-        detector's gates for this call."""
+        detector's gates for this call.
+
+        A detector with ``raw_input = True`` (the learned one) also takes
+        ``camera=``: ``image`` is then that camera's RAW frame and the detection is
+        still in its undistorted pixels (:func:`detect_raw`)."""
         ...  # pragma: no cover - protocol
+
+
+def detect_raw(detector, image: np.ndarray, camera, predicted_lines: np.ndarray | None = None,
+               association=None) -> Detection:
+    """Detect on ``camera``'s RAW frame, in its undistorted pixels, as tracking does: a
+    detector that reads raw frames (``raw_input``) gets the frame and the camera and
+    undistorts only what it uses; any other gets ``camera.undistort(image)``."""
+    if getattr(detector, "raw_input", False):
+        return detector.detect(image, predicted_lines, association, camera=camera)
+    return detector.detect(camera.undistort(image), predicted_lines, association)
