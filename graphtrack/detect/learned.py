@@ -97,8 +97,8 @@ def traced_net(net, key, shape: tuple[int, int]):
 
     The same conv kernels without the modules' Python overhead, and channels-last
     (NHWC) convolutions, which oneDNN runs faster on one core for this net's depthwise
-    and 1x1 layers: 4.9 vs 7.1 ms (traced NCHW) per 135x240 image, outputs equal to the
-    eager net's to 1e-5 (tests/test_learned_detector.py; docs/decisions/stereo-detection.md).
+    and 1x1 layers: 4.9 vs 7.1 ms (traced NCHW) per 135x240 image, logits within 1e-4 of the
+    eager net's (summation order; tests/test_learned_detector.py, docs/decisions/stereo-detection.md).
     Feed it ``channels_last`` input (any layout is correct, NHWC is the fast one). The
     decoder's sizes are traced as operations, so the trace serves any input size."""
     if key not in _TRACED:
