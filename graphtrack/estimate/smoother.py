@@ -16,7 +16,8 @@ One gtsam.Pose3 E_t per frame (key x_t; y_t once settled). Factors:
 
 Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
 (shaft factors, then with markers; markers-only frames held back up to
-``start_up_wait``), or initialised by the global search (:mod:`graphtrack.estimate.reinit`).
+``start_up_wait``), or from the global search's mode (:mod:`graphtrack.estimate.reinit`)
+in one stage with all the frame's factors.
 A re-initialisation by that policy restarts the window: the frame is started up
 as the first one. An outlier frame of its innovation gate adds only the motion factor.
 The policy's window challenge (``search_window`` frames; 0: off) re-searches on
@@ -202,7 +203,11 @@ class FixedLagSmootherEstimator:
         params.setDiagonalDamping(True)
         params.setlambdaUpperBound(1e12)
         pose = self.last if init is None else init
-        for stage in ([shaft, shaft + markers] if shaft and markers else [shaft + markers]):
+        # without a search the markers wait for the shaft stage (their association needs
+        # the shaft's pose); the search's mode already explains them: one stage, or the
+        # shaft-only stage would let the prior pull the unseen along-shaft slide back
+        staged = init is None and shaft and markers
+        for stage in ([shaft, shaft + markers] if staged else [shaft + markers]):
             g = gtsam.NonlinearFactorGraph()
             g.add(gtsam.PriorFactorPose3(x, self.last, self.prior_noise))
             for f in stage:
