@@ -189,8 +189,9 @@ class FixedLagSmootherEstimator:
 
     def _start_up(self, k: int, shaft: list, markers: list, x: int, init=None):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
-        that frame's factors + a prior at the current estimate (the hand-eye prior's
-        spread). iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
+        that frame's factors + the hand-eye prior (E_0, the prior's spread; the window's
+        first-frame prior too). Not a prior at the current estimate: a re-initialisation
+        follows a run-away estimate, which would pull the fresh start back to itself. iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
         error of several mm / deg overshoot into a wrong data association.
         ``init``: the initial value (the start-up search's mode) when it is not
         the prior's centre: the search picks the basin, the prior keeps its say."""
@@ -209,7 +210,7 @@ class FixedLagSmootherEstimator:
         staged = init is None and shaft and markers
         for stage in ([shaft, shaft + markers] if staged else [shaft + markers]):
             g = gtsam.NonlinearFactorGraph()
-            g.add(gtsam.PriorFactorPose3(x, self.last, self.prior_noise))
+            g.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
             for f in stage:
                 g.add(f)
             v = gtsam.Values()
