@@ -191,8 +191,9 @@ class FixedLagSmootherEstimator:
         """Initial value of the first frame with detections: Levenberg-Marquardt on
         that frame's factors + the hand-eye prior (E_0, the prior's spread; the window's
         first-frame prior too). Not a prior at the current estimate: a re-initialisation
-        follows a run-away estimate, which would pull the fresh start back to itself. iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye
-        error of several mm / deg overshoot into a wrong data association.
+        follows a run-away estimate, which would pull the fresh start back to itself.
+        iSAM2 makes undamped Gauss-Newton steps, which from a hand-eye error of several
+        mm / deg overshoot into a wrong data association.
         ``init``: the initial value (the start-up search's mode) when it is not
         the prior's centre: the search picks the basin, the prior keeps its say."""
         gtsam = self.gtsam
@@ -207,7 +208,7 @@ class FixedLagSmootherEstimator:
         # without a search the markers wait for the shaft stage (their association needs
         # the shaft's pose); the search's mode already explains them: one stage, or the
         # shaft-only stage would let the prior pull the unseen along-shaft slide back
-        staged = init is None and shaft and markers
+        staged = init is None and bool(shaft) and bool(markers)
         for stage in ([shaft, shaft + markers] if staged else [shaft + markers]):
             g = gtsam.NonlinearFactorGraph()
             g.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
