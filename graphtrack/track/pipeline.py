@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from graphtrack.detect import detect_raw, make_detector, observe
+from graphtrack.detect import make_detector, observe
 from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.estimate import estimator_class, make_estimator
 from graphtrack.estimate.options import EstimatorOptions
@@ -167,7 +167,7 @@ class Pipeline:
             img = image
         ms["undistort"] = ms.get("undistort", 0.0) + 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
-        detection = (detect_raw(self.detector, img, detect_camera, lines, gate) if raw
+        detection = (self.detector.detect(img, lines, gate, camera=detect_camera) if raw
                      else self.detector.detect(img, lines, gate))
         ms["detect"] = ms.get("detect", 0.0) + 1e3 * (time.perf_counter() - t)
         t = time.perf_counter()
