@@ -26,6 +26,7 @@ from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import shaft_pixels_factor
+from graphtrack.estimate.observation_models import PIXEL_EFFECTIVE_COUNT
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
 from graphtrack.geometry.cylinder import ShaftAxis
@@ -108,7 +109,7 @@ class FactorOptions:
     robust_k: float | None = None
     markers: bool = True
     max_pixels: int = 0
-    pixel_effective_count: float = 10.0
+    pixel_effective_count: float = PIXEL_EFFECTIVE_COUNT
     gate_scale: float = 1.0
     edge_bias: bool = True
     edge_bias_sigma_lateral: float = 0.3

@@ -45,8 +45,9 @@ INVALID_LOGLIK = -1.0e6
 #: Defaults (units in the names): polar Laplace rates, pixel sigma, marker model.
 GAMMA_RHO = 0.5        # 1/px: 2 px of rho error costs 1 nat
 GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
-PIXEL_EFFECTIVE_COUNT = 30.0  # per edge (0: every pixel counts once), the search's scorer; docs/decisions/pixel-effective-count.md
-PF_PIXEL_EFFECTIVE_COUNT = 10.0  # the particle filter's (and its search's), as the smoother's and batch's factors
+#: per edge (0: every pixel counts once): pf, smoother, batch; docs/decisions/pixel-effective-count.md
+PIXEL_EFFECTIVE_COUNT = 10.0
+SEARCH_PIXEL_EFFECTIVE_COUNT = 30.0  # the start-up search's scorer (its misfit thresholds were set with it)
 MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
 MARKER_GATE = 50.0     # px (paper: 20); docs/decisions/marker-gate.md
 MARKER_LOSS = "laplace"

@@ -81,7 +81,7 @@ class ParticleFilter:
                  pixel_weight: float = om.PIXEL_WEIGHT,
                  marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE,
                  gate_scale: float = 1.0,
-                 pixel_effective_count: float = om.PF_PIXEL_EFFECTIVE_COUNT,
+                 pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
