@@ -162,8 +162,8 @@ def _category(vis: np.ndarray, hidden: float) -> str:
 
 def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
     """The held-out randomized recordings: {detector: {category: {mode: figures}}} + counts."""
-    from graphtrack.robot.features import base_features, shaft_lines
     from graphtrack.detect import detect_raw
+    from graphtrack.robot.features import base_features, shaft_lines
     from graphtrack.sim.scene import SCENES
     from graphtrack.sim.simulate import Simulation
 
