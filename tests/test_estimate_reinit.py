@@ -134,6 +134,32 @@ def test_smoother_restarts_after_a_gap_and_reacquires_a_moved_tool():
     assert after[-1] < after[15]
 
 
+def test_after_a_gap_one_edge_makes_a_candidate_not_an_adoption():
+    """The tool re-enters the view an edge at a time: one edge of a pose 3 mm off, after
+    40 frames unseen, does not explain the prediction, and a search mode fit to it is set
+    along what the edge does not see by the hand-eye prior alone. The frame starts a
+    candidate (the multi-frame test decides) and the window challenge's schedule restarts;
+    nothing is adopted on that one frame."""
+    world = make_world(8, 3.0, 1.5)
+    policy = SearchInit(world.ctx, seed=0, window=6)
+    q, _ = _frame(world, 0)
+    assert policy.propose(q, _obs(world, q, world.E_true, 0), world.ctx.handeye, True) is not None
+    for t in range(1, 12):
+        q, _ = _frame(world, t)
+        assert policy.propose(q, _obs(world, q, world.E_true, t), world.E_true, True) is None
+    for t in range(12, 52):
+        q, _ = _frame(world, t)
+        assert policy.propose(q, Observation(MODEL), world.E_true, False) is None
+    moved = bw_to_matrix(np.array([0.003, -0.002, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
+    q, _ = _frame(world, 52)
+    both = _obs(world, q, moved, 52)
+    one = Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1])
+    count = policy.count
+    assert policy.propose(q, one, world.E_true, True) is None
+    assert policy.count == count and policy.candidate is not None
+    assert policy.used == 1                     # the challenge counts frames from the gap
+
+
 def _history(world, policy, x_est, frames=16):
     """Fill the policy's history with frames seen through the true E, each estimated at x_est."""
     for t in range(frames):

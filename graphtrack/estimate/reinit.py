@@ -17,10 +17,14 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
 - After a gap (an informative frame after ``gap`` or more frames without one)
   on which the prediction explains little (misfit above the monitor's
   threshold, also at the search's coarse pixel sigma ``COARSE_SIGMA``: the tool
-  moved while unseen) nothing is locked: x_c is adopted when
-  it explains this frame better than the prediction by more than ``margin``
-  nats and explains it (its own misfit under the threshold). A prediction that
-  still fits keeps its lock (the monitor watches it).
+  moved while unseen) nothing is locked: x_c becomes a candidate for the test
+  below, without the lock's covariance gate, and the window challenge's schedule
+  restarts (its searches 8 and 16 frames after the gap). One frame cannot decide
+  here either: the tool re-enters the view an edge at a time, and a mode fit to
+  one line is set along the directions that line does not see by the hand-eye
+  prior, not by what the estimate learnt before the gap
+  (docs/decisions/after-a-gap.md). A prediction that still fits keeps its lock
+  (the monitor watches it).
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -261,6 +265,9 @@ class SearchInit:
         after_gap = self.since >= self.gap and not m_cur <= self.threshold \
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
         self.since = 0
+        if after_gap:                               # the window challenge starts afresh
+            self.history.clear()
+            self.used = 0
         self._gate(m_cur, after_gap)
         if self.window and not self.rejected and np.isfinite(ll_cur):
             self.history.append((np.asarray(q, float), observation, ll_cur))
@@ -274,10 +281,6 @@ class SearchInit:
         res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
         if self.outside(res.x):
             return None
-        if after_gap:     # nothing locked to protect: the one-frame likelihood-ratio test,
-            # for a mode that explains the frame (misfit under the threshold)
-            ok = res.loglik > ll_cur + self.margin and misfit(res.loglik, floor) <= self.threshold
-            return self._adopt(res) if ok else None
         if self.locked and self.reject_run < self.gap and not self.near_lock(res.x, x_cur, cov):
             return None   # the lock's covariance gate: E does not jump
         self.candidate = _Candidate(res)
