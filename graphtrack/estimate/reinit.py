@@ -181,15 +181,11 @@ class SearchInit:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
 
     def _adopt(self, res: SearchResult) -> np.ndarray:
-        if self.monitor is not None:
-            self.monitor.reset()
-        self.candidate = None
-        self.rejected = False
-        self.unused = self.lock_run = self.reject_run = 0
+        since = self.since
+        self.start_over()
+        self.since = since
         self.count += 1
         self.result = res
-        self.history.clear()
-        self.used = 0
         return bw_to_matrix(res.x) @ self.E_ref
 
     def _search(self, q, observation, x_cur, prior_centre=None) -> SearchResult:
@@ -240,6 +236,20 @@ class SearchInit:
     def outside(self, x: np.ndarray) -> bool:
         """x (relative to E_ref) lies outside the hand-eye prior's region (module doc)."""
         return bool(np.sum((np.asarray(x, float) / self.spread) ** 2) > self.prior_gate)
+
+    def outside_pose(self, E: np.ndarray) -> bool:
+        """E (4x4) lies outside the hand-eye prior's region (module doc)."""
+        return self.outside(self._x(E))
+
+    def start_over(self) -> None:
+        """The estimator dropped its estimate: the next informative frame is a start-up
+        (searched, its mode adopted at once); nothing is locked or pending."""
+        if self.monitor is not None:
+            self.monitor.reset()
+        self.since = self.candidate = None
+        self.rejected = False
+        self.unused = self.lock_run = self.reject_run = self.used = 0
+        self.history.clear()
 
     def propose(self, q, observation, E_current: np.ndarray, informative: bool,
                 cov: np.ndarray | None = None) -> np.ndarray | None:

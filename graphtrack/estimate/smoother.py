@@ -20,6 +20,13 @@ Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
 in one stage with all the frame's factors.
 A re-initialisation by that policy restarts the window: the frame is started up
 as the first one. An outlier frame of its innovation gate adds only the motion factor.
+Containment: an estimate outside the hand-eye prior's region (the policy's prior
+gate; the lumped error never leaves it) is not reported. The frame's detections
+drove it where E is not (an occluder's edges, through the start-up LM or iSAM2's
+undamped Gauss-Newton steps): the window is dropped, the pose before the frame is
+reported (its covariance grown by one motion step; the prior's centre and spread
+if that pose was outside too), the frame counts as an outlier frame, and the policy
+starts up afresh on the next informative frame (docs/decisions/contained-estimate.md).
 The policy's window challenge (``search_window`` frames; 0: off) re-searches on
 several frames 8 and 16 frames after each start (docs/decisions/window-challenge.md).
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
@@ -129,6 +136,8 @@ class FixedLagSmootherEstimator:
                                      markers, motion_cov=self.motion_cov, window=search_window)
             self.start_up_wait = 0    # the search associates markers per hypothesis
         self.restarts = 0             # re-initialisations (window restarted)
+        self.prior_cov = np.diag(np.square([prior_sigma_b] * 3 + [prior_sigma_w] * 3))
+        self.contained = 0            # estimates outside the prior's region not reported (module doc)
 
     # -- helpers ---------------------------------------------------------------------
     def _new_smoother(self):
@@ -159,6 +168,19 @@ class FixedLagSmootherEstimator:
         self.prev_key = self.bias_stamp = self.start_stamp = self.last_cov = None
         self.settled = self.started = False
         self.restarts += 1
+
+    def _contain(self, before, before_cov):
+        """(pose, cov) reported instead of an estimate outside the prior's region: the pose
+        before this frame, cov + one motion step (the prior's centre and covariance if
+        that pose was outside too); the window is dropped and the policy starts over."""
+        self._restart()
+        self.reinit.start_over()
+        self.contained += 1
+        if self.reinit.outside_pose(before.matrix()):
+            before, before_cov = self.gtsam.Pose3(self.E0), None
+        cov = self.prior_cov if before_cov is None else before_cov + self.motion_cov
+        self.last = before
+        return before, cov
 
     def _stamp(self, frame: Frame) -> float:
         self.last_stamp = monotone_stamp(frame.stamp, self.last_stamp, self.fps)
@@ -270,6 +292,7 @@ class FixedLagSmootherEstimator:
         stamps = gtsam.FixedLagSmootherKeyTimestampMap()
         t = self._stamp(frame)
         shaft, markers, x = self._factors(frame, observation, right, t)
+        before, before_cov = self.last, self.last_cov
         found = None
         if self.reinit is not None:   # start-up / re-initialisation: initial value from the search
             found = self.reinit.propose(frame.q, observation, self.last.matrix(), bool(shaft or markers),
@@ -311,12 +334,16 @@ class FixedLagSmootherEstimator:
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
         cov = self._marginal(x, pose) if self.covariance else None
+        outlier = self.reinit is not None and self.reinit.rejected
+        if self.reinit is not None and self.reinit.outside_pose(pose.matrix()):
+            pose, cov = self._contain(before, before_cov)
+            outlier = True
         self.last_cov = cov
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)
         extra = estimate_extra(cov)
         extra["smoother_ms"] = ms
-        extra["outlier"] = float(self.reinit is not None and self.reinit.rejected)
+        extra["outlier"] = float(outlier)
         std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
         return Estimate(pose.matrix(), std, cov, extra)
 
