@@ -96,6 +96,34 @@ def test_an_occluder_frame_on_a_good_lock_is_predicted_through(name):
     assert moved[False] > 2 * moved[True], moved
 
 
+def test_a_lock_uses_only_frames_it_explains_as_well_as_those_that_formed_it():
+    """While locked, a frame whose misfit at the estimate lies between the lock's threshold
+    and the monitor's (a partial occluder: edges near the prediction) is an outlier
+    frame; the same frame before a lock is used and neither extends nor ends the run."""
+    world = make_world(3, 3.0, 1.5)
+    policy = SearchInit(world.ctx, seed=0)
+    q, _ = _frame(world, 0)
+    policy.propose(q, _obs(world, q, world.E_true, 0), world.ctx.handeye, True)
+    x_true = matrix_to_bw(world.E_true @ invert(world.ctx.handeye))
+    q, _ = _frame(world, 1)
+    partial = None
+    for turn in np.linspace(0.005, 0.06, 23):        # about the optical axis, rad: the misfit rises smoothly
+        obs = _obs(world, q, bw_to_matrix(np.array([0, 0, 0, 0, 0, turn])) @ world.E_true, 1)
+        m = misfit(*policy.scorer.with_floor(q, obs, x_true))
+        if policy.lock_threshold < m <= policy.threshold:
+            partial = obs
+            break
+    assert partial is not None
+    policy.propose(q, partial, world.E_true, True)
+    assert not policy.rejected and policy.lock_run == 0            # unlocked: used, the run unchanged
+    for t in range(2, 2 + policy.lock_frames):
+        qt, _ = _frame(world, t)
+        policy.propose(qt, _obs(world, qt, world.E_true, t), world.E_true, True)
+    assert policy.locked and not policy.rejected
+    policy.propose(q, partial, world.E_true, True)
+    assert policy.rejected and policy.rejections == 1
+
+
 def test_the_smoother_never_reports_an_estimate_outside_the_prior_region():
     """Ungated, an occluder 8 mm off drags the smoother's Gauss-Newton steps past the hand-eye
     prior's region (prior_distance computed by hand below). Such an estimate is not reported:

@@ -50,14 +50,16 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   the likelihood's outlier floor, 2 * 3 * 2 px, beyond which a static occluder's
   edges no longer count for the candidate), or ``gap`` frames have passed.
 - Innovation gate: while *locked* (``lock_frames`` consecutive frames the
-  estimator used were explained, misfit <= ``lock_threshold``; a frame with a
-  misfit between that and the threshold neither extends nor ends a lock), a
-  frame whose misfit at the current estimate exceeds the monitor's threshold
-  is an outlier frame
+  estimator used were explained, misfit <= ``lock_threshold``; before a lock, a
+  frame with a misfit between that and the threshold neither extends nor ends
+  one), a frame that the lock does not explain as well as it explained those
+  (misfit at the current estimate above ``lock_threshold``) is an outlier frame
   (``rejected``): the estimator predicts through it without its detections.
   An occluder (a second instrument, a tissue fold) that covers the shaft shows
   edges near, but not on, the prediction; used, they pull the estimate off by
-  tens of mm within a second. A lost lock is still caught: the monitor sees
+  tens of mm within a second, and a partial one drags it frame by frame with
+  misfits between the two thresholds (docs/decisions/gate-at-lock-threshold.md).
+  A lost lock is still caught: the monitor sees
   the rejected frames' misfits and the candidate test above replaces it. While
   locked, a candidate must also pass the lock's covariance gate
   (:meth:`SearchInit.near_lock`: E is nearly constant, so a well-explained lock
@@ -304,8 +306,9 @@ class SearchInit:
     def _gate(self, m_cur: float, after_gap: bool) -> None:
         """The innovation gate (module doc): mark this frame an outlier frame, or count it
         towards the lock (explained: misfit <= lock_threshold; unexplained, above the
-        threshold, ends a lock that is not yet established)."""
-        if self.innovation_gate and self.locked and not after_gap and m_cur > self.threshold:
+        threshold, ends a lock that is not yet established). A lock uses only frames it
+        explains as well as those that formed it."""
+        if self.innovation_gate and self.locked and not after_gap and not m_cur <= self.lock_threshold:
             self.rejected = True
             self.rejections += 1
             self.reject_run += 1
