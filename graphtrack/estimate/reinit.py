@@ -183,9 +183,7 @@ class SearchInit:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
 
     def _adopt(self, res: SearchResult) -> np.ndarray:
-        since = self.since
-        self.start_over()
-        self.since = since
+        self._forget()
         self.count += 1
         self.result = res
         return bw_to_matrix(res.x) @ self.E_ref
@@ -246,9 +244,15 @@ class SearchInit:
     def start_over(self) -> None:
         """The estimator dropped its estimate: the next informative frame is a start-up
         (searched, its mode adopted at once); nothing is locked or pending."""
+        self._forget()
+        self.since = None
+
+    def _forget(self) -> None:
+        """Drop what was learnt about the current estimate (an adoption or a start-over):
+        the monitor, a pending candidate, the lock and the challenge's history."""
         if self.monitor is not None:
             self.monitor.reset()
-        self.since = self.candidate = None
+        self.candidate = None
         self.rejected = False
         self.unused = self.lock_run = self.reject_run = self.used = 0
         self.history.clear()
