@@ -47,7 +47,7 @@ GAMMA_RHO = 0.5        # 1/px: 2 px of rho error costs 1 nat
 GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
 #: per edge (0: every pixel counts once): pf, smoother, batch; docs/decisions/pixel-effective-count.md
 PIXEL_EFFECTIVE_COUNT = 10.0
-SEARCH_PIXEL_EFFECTIVE_COUNT = 30.0  # the start-up search's scorer (its misfit thresholds were set with it)
+SEARCH_PIXEL_EFFECTIVE_COUNT = 30.0  # the search's default (the smoother's; the pf passes its own n)
 MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
 MARKER_GATE = 50.0     # px (paper: 20); docs/decisions/marker-gate.md
 MARKER_LOSS = "laplace"
