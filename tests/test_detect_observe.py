@@ -136,3 +136,27 @@ def test_endpoint_polar_needs_both_endpoint_discs():
     H[near] = 1.0                                   # both ends: the edge's line
     line = make_observation(det, "endpoint-intensities-polar").lines
     assert len(line) == 1 and abs(line[0, 1] - th) < 0.02
+
+
+@pytest.mark.parametrize("model", ["line-intensities", "endpoint-intensities", "line-intensities-polar"])
+def test_sets_of_refined_edges_are_carried_onto_the_refined_segment(model):
+    """A heatmap band 2.5 px off the segment (a coarse heatmap's offset): the sets of an
+    edge the refinement moved (Detection.refined) lie on the segment's line, those of
+    an edge it did not keep the heatmap's offset."""
+    from graphtrack.geometry.lines import line_through, pixel_residual
+
+    seg = np.array([[100.0, 400.0, 500.0, 150.0]])
+    rho, th = line_through(seg[0, :2], seg[0, 2:])
+    H = np.zeros((480, 640), np.float32)
+    yy, xx = np.mgrid[0:480, 0:640]
+    H[np.abs(np.cos(th) * xx + np.sin(th) * yy - rho - 2.5) <= 1.5] = 1.0
+    base = dict(shaft_segments=seg, shaft_lines=np.array([[rho, th]]), heatmap=H, edge_ids=np.array([0]))
+
+    def offset(det):
+        obs = make_observation(det, model)
+        if obs.lines.size:
+            return obs.lines[0, 0] - rho if abs(obs.lines[0, 1] - th) < 0.1 else rho - obs.lines[0, 0]
+        return float(np.mean(pixel_residual(obs.pixels[0], rho, th)))
+
+    assert abs(offset(Detection(**base)) - 2.5) < 0.3
+    assert abs(offset(Detection(**base, refined=np.array([True])))) < 0.3

@@ -91,3 +91,49 @@ def test_degenerate_inputs(heatmap):
     assert line_set(heatmap, (np.nan, 0, 1, 1)).shape == (0, 2)
     assert line_set(np.zeros((5, 5), np.float32), (0, 0, 4, 4)).shape == (0, 2)
     assert endpoints_set(np.zeros((0, 0), np.float32), (0, 0, 4, 4)).shape == (0, 2)
+
+
+def _band(rng, a, angle, offset, n=400, length=120.0, spread=1.0):
+    """n points along a line from a at ``angle``, ``offset`` px to its left, spread px across."""
+    d = np.array([np.cos(angle), np.sin(angle)])
+    nl = np.array([-d[1], d[0]])
+    return (np.asarray(a, float) + rng.uniform(0, length, (n, 1)) * d
+            + (offset + rng.normal(0, spread, (n, 1))) * nl)
+
+
+def test_carry_to_segment_puts_the_sets_line_on_the_segment():
+    """A band 3 px off and 0.03 rad skewed from a segment ends with its own TLS line
+    on the segment's line (geometry.lines.line_through), its count, its spread across
+    the line and its extent along it unchanged."""
+    from graphtrack.detect.pixel_sets import carry_to_segment
+    from graphtrack.detect.ransac import fit_line_tls
+    from graphtrack.geometry.lines import line_through, pixel_residual
+
+    rng = np.random.default_rng(3)
+    a, angle = np.array([40.0, 25.0]), 0.4
+    seg = np.concatenate([a, a + 120.0 * np.array([np.cos(angle), np.sin(angle)])])
+    pts = _band(rng, a, angle + 0.03, 3.0)
+    moved = carry_to_segment(pts, seg)
+    rho, theta = line_through(seg[:2], seg[2:])
+    assert len(moved) == len(pts)
+    r = pixel_residual(moved, rho, theta)
+    assert abs(r.mean()) < 1e-9                        # the line passes through the centroid
+    got = fit_line_tls(moved)
+    assert abs(np.sin(got[1] - theta)) < 1e-9          # and has the segment's direction
+    before = pixel_residual(pts, *fit_line_tls(pts))
+    assert np.isclose(r.std(), before.std(), rtol=1e-9)   # spread across kept (rigid)
+    d = np.array([np.cos(angle), np.sin(angle)])
+    assert np.isclose(np.ptp(moved @ d), np.ptp(pts @ d), rtol=0.01)
+
+
+def test_carry_to_segment_leaves_sets_that_are_not_a_band_along_it():
+    """Too few pixels, a degenerate segment, or a set whose line is more than
+    MAX_CARRY_ANGLE off the segment's: returned as it is."""
+    from graphtrack.detect.pixel_sets import MAX_CARRY_ANGLE, carry_to_segment
+
+    rng = np.random.default_rng(4)
+    seg = np.array([0.0, 0.0, 100.0, 0.0])
+    skew = _band(rng, (0.0, 0.0), 2 * MAX_CARRY_ANGLE, 1.0)
+    np.testing.assert_array_equal(carry_to_segment(skew, seg), skew)
+    np.testing.assert_array_equal(carry_to_segment(skew[:1], seg), skew[:1])
+    np.testing.assert_array_equal(carry_to_segment(skew, np.array([5.0, 5.0, 5.0, 5.0])), skew)

@@ -57,6 +57,10 @@ class Detection:
         each of shaft_segments / shaft_lines belongs to; without a prediction,
         0 and 1 in a deterministic but arbitrary order
         (:mod:`graphtrack.detect.association`).
+    refined: (k,) bool: which shaft segments a sub-pixel refinement moved onto the
+        image's edge (:mod:`graphtrack.detect.subpixel`); their heatmap pixel sets are
+        carried onto them (:func:`graphtrack.detect.pixel_sets.carry_to_segment`).
+        Empty or of another length: none.
     """
 
     segments: np.ndarray = field(default_factory=lambda: _empty(4))
@@ -66,6 +70,7 @@ class Detection:
     markers: np.ndarray = field(default_factory=lambda: _empty(2))
     ms: float = 0.0
     edge_ids: np.ndarray = field(default_factory=_empty_ids)
+    refined: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
 
 @dataclass

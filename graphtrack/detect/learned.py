@@ -243,3 +243,4 @@ class LearnedDetector:
             det.shaft_segments = refined
             det.shaft_lines = assoc.lines.copy()
             det.shaft_lines[moved] = np.stack([rho, theta], 1)
+            det.refined = moved

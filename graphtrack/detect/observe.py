@@ -40,7 +40,7 @@ from __future__ import annotations
 import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS, Detection, Observation
-from graphtrack.detect.pixel_sets import ALPHA, BETA, endpoints_set, line_set
+from graphtrack.detect.pixel_sets import ALPHA, BETA, carry_to_segment, endpoints_set, line_set
 from graphtrack.detect.ransac import RansacConfig, best_line
 from graphtrack.geometry.lines import line_through
 
@@ -106,7 +106,10 @@ def make_observation(detection: Detection, model: str, alpha: float = ALPHA, bet
         return obs
 
     endpoint = model.startswith("endpoint-")
-    sets = [_thin((endpoints_set if endpoint else line_set)(H, seg, alpha, beta), max_pixels) for seg in segs]
+    refined = np.asarray(getattr(detection, "refined", np.zeros(0)), bool).ravel()
+    refined = refined[ok] if len(refined) == len(ok) else np.zeros(len(segs), bool)
+    sets = [(endpoints_set if endpoint else line_set)(H, seg, alpha, beta) for seg in segs]
+    sets = [_thin(carry_to_segment(pts, seg) if r else pts, max_pixels) for pts, seg, r in zip(sets, segs, refined)]
 
     if model.endswith("-polar"):
         gen = _rng(rng)
@@ -169,4 +172,5 @@ def scale_detection(det: Detection, s: float) -> Detection:
     return Detection(segments=segs(det.segments), heatmap=det.heatmap, shaft_segments=segs(det.shaft_segments),
                      shaft_lines=_scale_lines(det.shaft_lines, s),
                      markers=_scale_points(np.asarray(det.markers, float).reshape(-1, 2), s),
-                     ms=det.ms, edge_ids=np.asarray(det.edge_ids).copy())
+                     ms=det.ms, edge_ids=np.asarray(det.edge_ids).copy(),
+                     refined=np.asarray(det.refined, bool).copy())

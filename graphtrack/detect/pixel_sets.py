@@ -15,14 +15,23 @@ row-major order (by y, then x).
 
 ``heatmap=None`` means H = 1 everywhere: the sets become the discs / capsules
 themselves (clipped to ``shape`` when it is given, else to x, y >= 0 only).
+
+A heatmap found at a reduced scale places its band a pixel or more off the image's
+edge; when the sub-pixel refinement has moved the edge's segment onto the image's
+edge, :func:`carry_to_segment` moves the set rigidly onto the segment's line
+(why, with measurements: docs/decisions/pixel-sets-follow-refinement.md).
 """
 from __future__ import annotations
 
 import cv2
 import numpy as np
 
+from graphtrack.detect.ransac import fit_line_tls
+
 ALPHA = 10.0  #: px, the method's set radius
 BETA = 0.90   #: the method's heatmap threshold
+#: rad: a set whose own line is further from the segment's is not a band along it and is not carried
+MAX_CARRY_ANGLE = 0.05
 
 
 def _box(xmin: float, xmax: float, ymin: float, ymax: float,
@@ -110,3 +119,36 @@ def line_set(heatmap: np.ndarray | None, segment: np.ndarray, alpha: float = ALP
     if len(p) == 0:
         return p
     return p[segment_distance(p, a, b) <= alpha]
+
+
+def carry_to_segment(points: np.ndarray, segment: np.ndarray, max_angle: float = MAX_CARRY_ANGLE) -> np.ndarray:
+    """The pixel set (m, 2) moved rigidly so that its own total-least-squares line lies on
+    the line of ``segment`` (x1, y1, x2, y2), px.
+
+    With the set's line n_s . p = rho_s (unit normal n_s), its centroid c and the foot
+    f = c - (n_s . c - rho_s) n_s, the segment's unit normal n_g (oriented so that
+    n_g . n_s >= 0) and a point a on it: every pixel is rotated about f by the angle
+    phi from n_s to n_g, then shifted by -(n_g . f - n_g . a) n_g. The pixels' count,
+    their spread about the line and their places along it are kept. Returned
+    unchanged: fewer than 2 pixels, a degenerate segment, or |phi| > ``max_angle``
+    (the set is then not a band along the segment).
+    """
+    p = np.asarray(points, float).reshape(-1, 2)
+    s = np.asarray(segment, float).ravel()
+    a, d = s[:2], s[2:4] - s[:2]
+    length = float(np.hypot(*d))
+    if len(p) < 2 or not np.isfinite(length) or length <= 0:
+        return p
+    rho, theta = fit_line_tls(p)
+    n_s = np.array([np.cos(theta), np.sin(theta)])
+    n_g = np.array([-d[1], d[0]]) / length
+    if n_g @ n_s < 0:
+        n_g = -n_g
+    phi = float(np.arctan2(n_s[0] * n_g[1] - n_s[1] * n_g[0], n_s @ n_g))
+    if abs(phi) > max_angle:
+        return p
+    c = p.mean(axis=0)
+    f = c - (n_s @ c - rho) * n_s
+    cp, sp = np.cos(phi), np.sin(phi)
+    q = (p - f) @ np.array([[cp, sp], [-sp, cp]]) + f
+    return q - (n_g @ f - n_g @ a) * n_g

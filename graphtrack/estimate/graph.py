@@ -114,8 +114,8 @@ class FactorOptions:
     edge_bias: bool = True
     edge_bias_sigma_lateral: float = 0.3
     edge_bias_sigma_lateral_slope: float = 0.3
-    edge_bias_sigma_width: float = 3.0
-    edge_bias_sigma_width_slope: float = 3.0
+    edge_bias_sigma_width: float = 1.5
+    edge_bias_sigma_width_slope: float = 1.5
     edge_bias_tau: float = 2.0
     edge_bias_every: int = 5
 
