@@ -26,8 +26,6 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from graphtrack.detect.ransac import fit_line_tls
-
 ALPHA = 10.0  #: px, the method's set radius
 BETA = 0.90   #: the method's heatmap threshold
 #: rad: a set whose own line is further from the segment's is not a band along it and is not carried
@@ -125,30 +123,31 @@ def carry_to_segment(points: np.ndarray, segment: np.ndarray, max_angle: float =
     """The pixel set (m, 2) moved rigidly so that its own total-least-squares line lies on
     the line of ``segment`` (x1, y1, x2, y2), px.
 
-    With the set's line n_s . p = rho_s (unit normal n_s), its centroid c and the foot
-    f = c - (n_s . c - rho_s) n_s, the segment's unit normal n_g (oriented so that
-    n_g . n_s >= 0) and a point a on it: every pixel is rotated about f by the angle
-    phi from n_s to n_g, then shifted by -(n_g . f - n_g . a) n_g. The pixels' count,
-    their spread about the line and their places along it are kept. Returned
-    unchanged: fewer than 2 pixels, a degenerate segment, or |phi| > ``max_angle``
+    The set's TLS line passes through its centroid c along the principal direction
+    d_s = (cos a, sin a), a = atan2(2 S_xy, S_xx - S_yy) / 2 (S: the centred second
+    moments), unit normal n_s = (-sin a, cos a). With the segment's unit normal n_g
+    (oriented so that n_g . n_s >= 0) and a point e^a on it, every pixel is rotated
+    about c by the angle phi from n_s to n_g, then shifted by -(n_g . c - n_g . e^a) n_g.
+    The pixels' count, their spread about the line and their places along it are kept.
+    Returned unchanged: fewer than 2 pixels, a degenerate segment, or |phi| > ``max_angle``
     (the set is then not a band along the segment).
     """
     p = np.asarray(points, float).reshape(-1, 2)
     s = np.asarray(segment, float).ravel()
     a, d = s[:2], s[2:4] - s[:2]
-    length = float(np.hypot(*d))
+    length = float(np.hypot(d[0], d[1]))
     if len(p) < 2 or not np.isfinite(length) or length <= 0:
         return p
-    rho, theta = fit_line_tls(p)
-    n_s = np.array([np.cos(theta), np.sin(theta)])
+    c = p.mean(axis=0)
+    q = p - c
+    sxx, sxy, syy = q[:, 0] @ q[:, 0], q[:, 0] @ q[:, 1], q[:, 1] @ q[:, 1]
+    ang = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    n_s = np.array([-np.sin(ang), np.cos(ang)])
     n_g = np.array([-d[1], d[0]]) / length
     if n_g @ n_s < 0:
         n_g = -n_g
     phi = float(np.arctan2(n_s[0] * n_g[1] - n_s[1] * n_g[0], n_s @ n_g))
     if abs(phi) > max_angle:
         return p
-    c = p.mean(axis=0)
-    f = c - (n_s @ c - rho) * n_s
     cp, sp = np.cos(phi), np.sin(phi)
-    q = (p - f) @ np.array([[cp, sp], [-sp, cp]]) + f
-    return q - (n_g @ f - n_g @ a) * n_g
+    return q @ np.array([[cp, sp], [-sp, cp]]) + (c - (n_g @ c - n_g @ a) * n_g)
