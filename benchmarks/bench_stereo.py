@@ -154,4 +154,4 @@ def run(results: dict) -> dict:
 
 if __name__ == "__main__":
     res = run({})
-    print(json.dumps({k: v for k, v in res["stereo"].items() if k != "tables"}, indent=1, default=str))
+    print(json.dumps({k: v for k, v in res.items() if k != "tables"}, indent=1, default=str))
