@@ -137,3 +137,29 @@ def test_carry_to_segment_leaves_sets_that_are_not_a_band_along_it():
     np.testing.assert_array_equal(carry_to_segment(skew, seg), skew)
     np.testing.assert_array_equal(carry_to_segment(skew[:1], seg), skew[:1])
     np.testing.assert_array_equal(carry_to_segment(skew, np.array([5.0, 5.0, 5.0, 5.0])), skew)
+    blob = rng.normal(0.0, 2.0, (300, 2)) + (50.0, 1.0)          # no direction to carry
+    for seg_b in (seg, np.array([50.0, -50.0, 50.0, 50.0])):
+        np.testing.assert_array_equal(carry_to_segment(blob, seg_b), blob)
+    nan = skew.copy()
+    nan[3] = np.nan
+    np.testing.assert_array_equal(carry_to_segment(nan, seg), nan)
+
+
+@pytest.mark.parametrize("angle", [np.pi / 2, -np.pi / 2 + 0.01, 0.0, 2.5])
+@pytest.mark.parametrize("skew", [0.04, -0.04])
+def test_carry_to_segment_any_orientation(angle, skew):
+    """Vertical, horizontal and steep segments, skewed either way, ends swapped:
+    the carried set's centroid is on the segment's line and its TLS line parallel."""
+    from graphtrack.detect.pixel_sets import carry_to_segment
+    from graphtrack.detect.ransac import fit_line_tls
+    from graphtrack.geometry.lines import line_through, pixel_residual
+
+    rng = np.random.default_rng(5)
+    a = np.array([200.0, 150.0])
+    b = a + 80.0 * np.array([np.cos(angle), np.sin(angle)])
+    pts = _band(rng, a, angle + skew, -2.0, length=80.0)
+    rho, theta = line_through(a, b)
+    for seg in (np.concatenate([a, b]), np.concatenate([b, a])):
+        moved = carry_to_segment(pts, seg)
+        assert abs(pixel_residual(moved, rho, theta).mean()) < 1e-9
+        assert abs(np.sin(fit_line_tls(moved)[1] - theta)) < 1e-9

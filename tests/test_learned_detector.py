@@ -197,3 +197,32 @@ def test_sold2_adapter_random_weights(tmp_path):
     torch.save({"a": torch.zeros(3)}, bad)
     with pytest.raises(InputError, match="architecture"):
         Sold2Detector(weights=bad)
+
+
+def test_refined_edges_pixel_sets_lie_on_the_true_limbs(detector):
+    """The learned detector marks the edges its refinement moved (Detection.refined, one
+    flag per shaft segment, kept by scale_detection; none without the refinement);
+    their line-intensities sets, carried onto the refined segments, lie on the true
+    limbs (the simulator's projection) to half a pixel. (That a band off the edge is
+    carried onto it: test_detect_observe.py.)"""
+    from graphtrack.detect import make_observation
+    from graphtrack.detect.learned import LearnedDetector
+    from graphtrack.detect.observe import scale_detection
+    from graphtrack.geometry.lines import pixel_residual
+    from graphtrack.robot.features import base_features, shaft_lines
+    from graphtrack.sim.simulate import Simulation
+
+    sim = Simulation("tissue", 10, seed=4243, size=(540, 960))
+    coarse = LearnedDetector(subpixel=False)
+    offsets = []
+    for k in (2, 5, 8):
+        raw, _ = sim.render(k)
+        und = sim.camera.undistort(raw)
+        rho, th, _ = shaft_lines(base_features(sim.robot, sim.q_read[k]).transformed(sim.E_t[k]), sim.camera.K)
+        assert len(coarse.detect(und, np.stack([rho, th], 1)).refined) == 0
+        det = detector.detect(und, np.stack([rho, th], 1))
+        assert len(det.refined) == len(det.shaft_segments) == 2 and det.refined.all()
+        np.testing.assert_array_equal(scale_detection(det, 0.5).refined, det.refined)
+        obs = make_observation(det, "line-intensities")
+        offsets += [abs(np.median(pixel_residual(pts, rho[j], th[j]))) for pts, j in zip(obs.pixels, obs.edge_ids)]
+    assert len(offsets) == 6 and max(offsets) < 0.5

@@ -129,8 +129,9 @@ def carry_to_segment(points: np.ndarray, segment: np.ndarray, max_angle: float =
     (oriented so that n_g . n_s >= 0) and a point e^a on it, every pixel is rotated
     about c by the angle phi from n_s to n_g, then shifted by -(n_g . c - n_g . e^a) n_g.
     The pixels' count, their spread about the line and their places along it are kept.
-    Returned unchanged: fewer than 2 pixels, a degenerate segment, or |phi| > ``max_angle``
-    (the set is then not a band along the segment).
+    Returned unchanged: fewer than 2 pixels, a degenerate segment, a set without a
+    direction (principal second moments within a factor 3 of each other: a blob), or
+    |phi| > ``max_angle`` (the set is then not a band along the segment).
     """
     p = np.asarray(points, float).reshape(-1, 2)
     s = np.asarray(segment, float).ravel()
@@ -141,13 +142,15 @@ def carry_to_segment(points: np.ndarray, segment: np.ndarray, max_angle: float =
     c = p.mean(axis=0)
     q = p - c
     sxx, sxy, syy = q[:, 0] @ q[:, 0], q[:, 0] @ q[:, 1], q[:, 1] @ q[:, 1]
+    if not np.hypot(sxx - syy, 2.0 * sxy) >= 0.5 * (sxx + syy):   # (l1 - l2) / (l1 + l2) < 1/2; NaN
+        return p
     ang = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     n_s = np.array([-np.sin(ang), np.cos(ang)])
     n_g = np.array([-d[1], d[0]]) / length
     if n_g @ n_s < 0:
         n_g = -n_g
     phi = float(np.arctan2(n_s[0] * n_g[1] - n_s[1] * n_g[0], n_s @ n_g))
-    if abs(phi) > max_angle:
+    if not abs(phi) <= max_angle:
         return p
     cp, sp = np.cos(phi), np.sin(phi)
     return q @ np.array([[cp, sp], [-sp, cp]]) + (c - (n_g @ c - n_g @ a) * n_g)
