@@ -21,7 +21,13 @@ limb line (wrong lines do not count); ``rho_px`` / ``theta_rad`` = median
 |d_rho| / |d_theta| of the detected edges against their nearest true line;
 ``ms`` = median detection time per frame, one thread (torch, OpenCV);
 ``rho_p90`` = 90th percentile of |d_rho|. Each true line counts once: two
-detected lines near the same limb are not both edges.
+detected lines near the same limb are not both edges. What the pixel models
+consume: ``set_px`` = median over the frames' ``line-intensities`` pixel sets of
+|the set's median signed distance to its nearest true limb|, ``set_in_px`` the
+median of that signed distance (+ inwards, into the shaft's image), and
+``set_px_heatmap`` / ``set_in_px_heatmap`` the same for the sets as the heatmap
+gives them, before refined edges' sets are carried onto their segments
+(docs/decisions/pixel-sets-follow-refinement.md).
 
 Randomized held-out set (``results["detect"]["randomized"]``): RECORDINGS
 recordings per scene at 540x960, ``randomize=True``, each RAND_FRAMES frames
@@ -76,6 +82,28 @@ def _errors(lines, rho, th):
     return out
 
 
+def _set_offsets(d, rho, th) -> list[tuple[float, float]]:
+    """(carried, heatmap) signed inward offset (px) of each line-intensities set of
+    detection d from its nearest true limb (rho, th (2,)): the median over its pixels."""
+    import dataclasses
+
+    from graphtrack.detect import make_observation
+    from graphtrack.geometry.lines import pixel_residual
+
+    def signed(det):
+        out = []
+        for pts in make_observation(det, "line-intensities", use_markers=False).pixels:
+            r = [np.median(pixel_residual(pts, rho[j], th[j])) for j in range(2)]
+            j = int(np.argmin(np.abs(r)))
+            o = 1 - j
+            inside = rho[o] * np.array([np.cos(th[o]), np.sin(th[o])])   # a point of the other limb
+            out.append(float(r[j] * np.sign(pixel_residual(inside[None], rho[j], th[j])[0])))
+        return out
+    plain = dataclasses.replace(d, refined=np.zeros(0, bool))
+    a, b = signed(d), signed(plain)
+    return list(zip(a, b)) if len(a) == len(b) else []
+
+
 def _both(errors) -> bool:
     """Both true limb lines matched, each by a detected line within tolerance."""
     return len({j for dr, dt, j in errors if dr <= TOL_RHO and dt <= TOL_THETA}) == 2
@@ -84,7 +112,14 @@ def _both(errors) -> bool:
 def _summary(a: dict) -> dict:
     e = np.array(a["err"]).reshape(-1, 3)
     has = len(e) > 0
-    return {"both": round(a["both"] / max(a["n"], 1), 3),
+    sets = np.array(a.get("sets", [])).reshape(-1, 2)
+    fig = {}
+    if len(sets):
+        fig = {"set_px": round(float(np.median(np.abs(sets[:, 0]))), 2),
+               "set_in_px": round(float(np.median(sets[:, 0])), 2),
+               "set_px_heatmap": round(float(np.median(np.abs(sets[:, 1]))), 2),
+               "set_in_px_heatmap": round(float(np.median(sets[:, 1])), 2)}
+    return {**fig, "both": round(a["both"] / max(a["n"], 1), 3),
             "rho_px": round(float(np.median(e[:, 0])), 2) if has else None,
             "rho_p90": round(float(np.percentile(e[:, 0], 90)), 2) if has else None,
             "theta_rad": round(float(np.median(e[:, 1])), 4) if has else None,
@@ -133,6 +168,7 @@ def _standard(dets: dict, frames: int, log) -> dict:
                     a["ms"].append(d.ms)
                     a["err"] += e
                     a["both"] += int(_both(e))
+                    a.setdefault("sets", []).extend(_set_offsets(d, rho, th))
         for (name, mode), a in acc.items():
             out.setdefault(name, {}).setdefault(scene, {})[mode] = _summary(a)
             log(f"{name:16s} {scene:10s} {mode:5s} " + json.dumps(out[name][scene][mode]))
@@ -196,6 +232,7 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                         e = _errors(d.shaft_lines, rho, th)
                         a["err"] += e
                         a["both"] += int(_both(e))
+                        a.setdefault("sets", []).extend(_set_offsets(d, rho, th))
         log(f"randomized {scene}: {counts}")
     out: dict = {"seeds": f"{HELD_OUT}-{HELD_OUT + recordings - 1} per scene", "frames": counts}
     for (name, cat, mode), a in sorted(acc.items()):
@@ -222,6 +259,20 @@ def _table(std: dict, rnd: dict) -> str:
     return "\n".join(rows)
 
 
+def _sets_table(std: dict, rnd: dict) -> str:
+    """Markdown: the line-intensities sets' offsets from the true limbs, free mode."""
+    rows = ["| detector | structured | tissue | rand. clear | rand. occluded |", "|" + "---|" * 5]
+
+    def f(x):
+        return "-" if not x or "set_px" not in x else (
+            f"{x['set_px']} / {x['set_px_heatmap']} ({x['set_in_px']:+} / {x['set_in_px_heatmap']:+})")
+    for name in std:
+        r = rnd.get(name, {})
+        rows.append(f"| {name} | {f(std[name]['structured']['free'])} | {f(std[name]['tissue']['free'])} | "
+                    f"{f(r.get('clear', {}).get('free'))} | {f(r.get('occluded', {}).get('free'))} |")
+    return "\n".join(rows)
+
+
 def run(results: dict, frames: int = FRAMES, sold2: str | None = None, log=print, recordings: int = RECORDINGS,
         rand_frames: int = RAND_FRAMES, weights=None) -> dict:
     """Fill results["detect"]: the standard figures per detector, ["randomized"], ["tables"]."""
@@ -233,8 +284,11 @@ def run(results: dict, frames: int = FRAMES, sold2: str | None = None, log=print
     if recordings > 0:
         out["randomized"] = _randomized(dets, recordings, rand_frames, log)
         if out.get("canny"):
-            out["tables"] = {"free mode: both-edges rate / median / p90 |d_rho| px": _table(
-                {k: v for k, v in out.items() if k not in ("randomized", "tables")}, out["randomized"])}
+            std = {k: v for k, v in out.items() if k not in ("randomized", "tables")}
+            out["tables"] = {
+                "free mode: both-edges rate / median / p90 |d_rho| px": _table(std, out["randomized"]),
+                "free mode: line-intensities sets, median |offset| px carried / as the heatmap gives them "
+                "(median signed offset, + into the shaft)": _sets_table(std, out["randomized"])}
     results["detect"] = out
     return out
 
