@@ -254,8 +254,13 @@ class SearchInit:
             self.monitor.reset()
         self.candidate = None
         self.rejected = False
-        self.unused = self.lock_run = self.reject_run = self.used = 0
+        self.unused = self.lock_run = self.reject_run = 0
+        self._restart_challenge()
+
+    def _restart_challenge(self) -> None:
+        """The window challenge's schedule starts afresh: its history is emptied."""
         self.history.clear()
+        self.used = 0
 
     def propose(self, q, observation, E_current: np.ndarray, informative: bool,
                 cov: np.ndarray | None = None) -> np.ndarray | None:
@@ -281,9 +286,8 @@ class SearchInit:
         after_gap = self.since >= self.gap and not m_cur <= self.threshold \
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
         self.since = 0
-        if after_gap:                               # the window challenge starts afresh
-            self.history.clear()
-            self.used = 0
+        if after_gap:
+            self._restart_challenge()
         self._gate(m_cur, after_gap)
         if self.window and not self.rejected and np.isfinite(ll_cur):
             self.history.append((np.asarray(q, float), observation, ll_cur))
