@@ -194,3 +194,45 @@ def test_outside_prior_hand_computed():
     assert not outside_prior(bw_to_matrix([0.99 * r * 5e-3, 0, 0, 0, 0, 0]) @ E0, E0, 5e-3, 0.035)
     assert outside_prior(bw_to_matrix([1.01 * r * 5e-3, 0, 0, 0, 0, 0]) @ E0, E0, 5e-3, 0.035)
     assert outside_prior(bw_to_matrix([0, 0, 0, 0, 1.01 * r * 0.035, 0]) @ E0, E0, 5e-3, 0.035)
+
+
+def test_frames_the_online_smoother_rejected_keep_only_their_motion_factors():
+    """An instrument lying 8 mm off over the shaft for 20 frames of a good lock: the online
+    smoother flags those frames (outlier). The batch leaves out their detection factors,
+    so its refinement stays where the same recording without the occluder puts it;
+    given every frame's detections (the flags cleared) it is pulled off, on every frame.
+    Oracle: the refinement of the occluder-free recording (the synthetic world's
+    observations of the true E on every frame)."""
+    from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
+    from graphtrack.io.frame import Frame
+    from graphtrack.sim import synthetic as syn
+    from robust_world import make_world
+
+    world = make_world(3, 3.0, 1.5)
+    occluder = bw_to_matrix(np.array([0.008, 0.0, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
+    occluded = range(15, 35)
+
+    def refine_with(occluder_on: bool, flags_kept: bool = True):
+        est = BatchEstimator(world.ctx, covariance=False)
+        flags = []
+        for t in range(50):
+            q = world.joints(t)
+            seen = occluder if occluder_on and t in occluded else world.E_true
+            obs = syn.observe(world.scene, q, seen, np.random.default_rng(t), pixel_noise=0.5, outliers=0.02,
+                              marker_noise=0.5).observation("line-intensities")
+            flags.append(bool(est.step(Frame(t, t / 30.0, None, q[:6], q[6]), obs).extra["outlier"]))
+        if not flags_kept:
+            est.outlier = [False] * len(est.outlier)
+        return flags, est.finish()
+
+    clean_flags, clean = refine_with(False)
+    flags, kept = refine_with(True)
+    assert not any(clean_flags) and sum(flags[t] for t in occluded) >= 15 and not any(flags[:15])
+    _, used = refine_with(True, flags_kept=False)
+
+    def moved(out):   # mm: the largest displacement from the clean refinement of a point 0.1 m out
+        return 1e3 * max(np.linalg.norm(x[:3]) + 0.1 * np.linalg.norm(x[3:])
+                         for x in (matrix_to_bw(o.E @ invert(c.E)) for o, c in zip(out, clean)))
+
+    assert moved(kept) < 1.0, moved(kept)
+    assert moved(used) > 3 * moved(kept), (moved(used), moved(kept))

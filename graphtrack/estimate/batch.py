@@ -12,7 +12,12 @@ and observation and returns a provisional estimate (the previous one: E_0 at
 first, or the online smoother's when ``provisional="smoother"``, the default,
 with its std: the tracking pipeline gates the detector with the provisional
 estimate's std, so the batch refines exactly the detections the online
-smoother saw; without the std every frame had the widest gate); ``finish``
+smoother saw; without the std every frame had the widest gate). A frame the
+online smoother flagged an outlier frame (its ``outlier`` column: a good lock
+did not explain it, an occluder's edges near the shaft, or its detections drove
+the estimate out of the hand-eye prior's region) keeps only its between
+factors here too: over the whole recording such frames otherwise pull every
+E_t towards the occluder (docs/decisions/batch-skips-outlier-frames.md). ``finish``
 runs Levenberg-Marquardt over all frames (:mod:`graphtrack.estimate.lm`,
 gtsam's iteration driven from Python so that the factor callbacks see the
 Values without pybind11 copying it into each one), initialised from the
@@ -83,6 +88,7 @@ class BatchEstimator:
         self.frames: list[tuple[np.ndarray, object, object]] = []   # (q, left obs, right obs)
         self.stamps: list[float] = []
         self.initial: list[np.ndarray] = []
+        self.outlier: list[bool] = []   # per frame: the online smoother did not use its detections
         self.online = None
         if provisional == "smoother":
             self.online = FixedLagSmootherEstimator(ctx, markers=markers,
@@ -98,12 +104,14 @@ class BatchEstimator:
         if self.online is not None:
             provisional = self.online.step(frame, observation, right)
             self.initial.append(np.array(provisional.E, float))
+            self.outlier.append(bool(provisional.extra.get("outlier", 0.0)))
             # with its std, which the tracking pipeline's detector gate reads (so the
             # provisional smoother always computes its marginals: ~0.3 ms per frame with
             # iSAM2, 10-15 % with smoother="batch")
             return provisional
         E = self.initial[-1] if self.initial else self.E0
         self.initial.append(np.asarray(E, float))
+        self.outlier.append(False)
         return Estimate(np.asarray(E, float).copy())
 
     # -- the whole-recording graph -----------------------------------------------------
@@ -115,8 +123,9 @@ class BatchEstimator:
                 graph.add(gtsam.PriorFactorPose3(key(0), gtsam.Pose3(self.E0), self.prior_noise))
             else:
                 graph.add(gtsam.BetweenFactorPose3(key(k - 1), key(k), gtsam.Pose3(), self.motion_noise))
-            for f in stereo_frame_factors(k, q, obs, right, self.ctx, self.K, self.fopts, self.E0):
-                graph.add(f)
+            if not self.outlier[k]:
+                for f in stereo_frame_factors(k, q, obs, right, self.ctx, self.K, self.fopts, self.E0):
+                    graph.add(f)
             values.insert(key(k), gtsam.Pose3(self.initial[k]))
             if self.bias and k % self.every == 0:     # the bias of frames k .. k + every - 1
                 j = k // self.every
@@ -202,7 +211,8 @@ class BatchEstimator:
                 covs = [None] * n
         t3 = time.perf_counter()
         self.stats = {"build_s": t1 - t0, "optimize_s": t2 - t1, "covariance_s": t3 - t2,
-                      "iterations": float(res.iterations), "error": res.error}
+                      "iterations": float(res.iterations), "error": res.error,
+                      "frames_outlier_online": float(sum(self.outlier))}
         out, kept = [], 0
         for k in range(n):
             E = result.atPose3(key(k)).matrix()
