@@ -160,3 +160,24 @@ def test_sets_of_refined_edges_are_carried_onto_the_refined_segment(model):
 
     assert abs(offset(Detection(**base)) - 2.5) < 0.3
     assert abs(offset(Detection(**base, refined=np.array([True])))) < 0.3
+
+
+def test_bands_are_the_sets_of_edges_a_flagging_detector_did_not_refine():
+    """Observation.bands follows Detection.refined per pixel set (False where the edge
+    was refined, True where not), is empty-handed (all False) for a detector that sets
+    no flags (the Canny detector), and survives scale_observation."""
+    from graphtrack.detect.observe import scale_observation
+
+    segs = np.array([[100.0, 400.0, 500.0, 150.0], [120.0, 440.0, 520.0, 190.0]])
+    H = np.zeros((480, 640), np.float32)
+    yy, xx = np.mgrid[0:480, 0:640]
+    for a, b in ((segs[0, :2], segs[0, 2:]), (segs[1, :2], segs[1, 2:])):
+        d = (b - a) / np.linalg.norm(b - a)
+        H[np.abs(-d[1] * (xx - a[0]) + d[0] * (yy - a[1])) <= 1.0] = 1.0
+    base = dict(shaft_segments=segs, heatmap=H, edge_ids=np.array([0, 1]))
+    for model in ("line-intensities", "endpoint-intensities"):
+        flagged = make_observation(Detection(**base, refined=np.array([True, False])), model)
+        assert flagged.bands.tolist() == [False, True]
+        assert scale_observation(flagged, 0.5).bands.tolist() == [False, True]
+        assert make_observation(Detection(**base), model).bands.tolist() == [False, False]
+

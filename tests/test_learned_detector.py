@@ -201,10 +201,11 @@ def test_sold2_adapter_random_weights(tmp_path):
 
 def test_refined_edges_pixel_sets_lie_on_the_true_limbs(detector):
     """The learned detector marks the edges its refinement moved (Detection.refined, one
-    flag per shaft segment, kept by scale_detection; none without the refinement);
+    flag per shaft segment, kept by scale_detection; all False without the refinement);
     their line-intensities sets, carried onto the refined segments, lie on the true
-    limbs (the simulator's projection) to half a pixel. (That a band off the edge is
-    carried onto it: test_detect_observe.py.)"""
+    limbs (the simulator's projection) to half a pixel and are not bands; without the
+    refinement every set is a band. (That a band off the edge is carried onto it:
+    test_detect_observe.py.)"""
     from graphtrack.detect import make_observation
     from graphtrack.detect.learned import LearnedDetector
     from graphtrack.detect.observe import scale_detection
@@ -219,10 +220,13 @@ def test_refined_edges_pixel_sets_lie_on_the_true_limbs(detector):
         raw, _ = sim.render(k)
         und = sim.camera.undistort(raw)
         rho, th, _ = shaft_lines(base_features(sim.robot, sim.q_read[k]).transformed(sim.E_t[k]), sim.camera.K)
-        assert len(coarse.detect(und, np.stack([rho, th], 1)).refined) == 0
+        unrefined = coarse.detect(und, np.stack([rho, th], 1))
+        assert len(unrefined.refined) == len(unrefined.shaft_segments) == 2 and not unrefined.refined.any()
+        assert make_observation(unrefined, "line-intensities").bands.tolist() == [True, True]
         det = detector.detect(und, np.stack([rho, th], 1))
         assert len(det.refined) == len(det.shaft_segments) == 2 and det.refined.all()
         np.testing.assert_array_equal(scale_detection(det, 0.5).refined, det.refined)
         obs = make_observation(det, "line-intensities")
+        assert obs.bands.tolist() == [False, False]
         offsets += [abs(np.median(pixel_residual(pts, rho[j], th[j]))) for pts, j in zip(obs.pixels, obs.edge_ids)]
     assert len(offsets) == 6 and max(offsets) < 0.5

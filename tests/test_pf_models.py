@@ -211,3 +211,29 @@ def test_marker_losses_and_pixel_effective_count():
     obs = Observation("line-intensities", pixels=[pix])
     s = om.shaft_loglik(obs, rho, theta, np.ones(2, bool), pixel_effective_count=10.0)
     np.testing.assert_allclose(s, 0.1 * plain, rtol=1e-5)
+
+
+def test_a_band_counts_band_weight_times_a_refined_set():
+    """shaft_loglik is a weighted sum over pixels (module formula): with one set marked
+    a band, the frame scores loglik(refined set) + band_weight * loglik(band), each set
+    scored alone with the same effective count (hand-derived from the sum's linearity).
+    Unmarked observations (bands empty) and band_weight 1 score as before."""
+    rng = np.random.default_rng(7)
+    rho = np.array([[300.0, 420.0]]) + rng.normal(0.0, 3.0, (50, 2))
+    theta = np.full((50, 2), 0.6) + rng.normal(0.0, 0.01, (50, 2))
+    sets = []
+    for r0 in (300.0, 424.0):   # the second set lies 4 px off its limb, as an outward band
+        n = np.array([np.cos(0.6), np.sin(0.6)])
+        sets.append(r0 * n + np.linspace(-200, 200, 80)[:, None] * [-n[1], n[0]])
+    valid = np.ones(50, bool)
+
+    def ll(pixels, bands=(), **kw):
+        obs = Observation("line-intensities", pixels=pixels, bands=np.array(bands, bool))
+        return om.shaft_loglik(obs, rho, theta, valid, **kw)
+
+    alone = [ll([p]) for p in sets]
+    both = ll(sets, [False, True], band_weight=0.25)
+    np.testing.assert_allclose(both, alone[0] + 0.25 * alone[1], rtol=1e-5)
+    np.testing.assert_allclose(ll(sets), alone[0] + alone[1], rtol=1e-5)
+    np.testing.assert_allclose(ll(sets, [False, True]), ll(sets), rtol=1e-12)   # default weight 1
+    assert om.PF_BAND_WEIGHT == 0.25 and ParticleFilter.__init__.__kwdefaults__["band_weight"] == om.PF_BAND_WEIGHT

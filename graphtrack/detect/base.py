@@ -59,8 +59,12 @@ class Detection:
         (:mod:`graphtrack.detect.association`).
     refined: (k,) bool: which shaft segments a sub-pixel refinement moved onto the
         image's edge (:mod:`graphtrack.detect.subpixel`); their heatmap pixel sets are
-        carried onto them (:func:`graphtrack.detect.pixel_sets.carry_to_segment`).
-        Empty or of another length: none.
+        carried onto them (:func:`graphtrack.detect.pixel_sets.carry_to_segment`). A
+        detector whose heatmap is a band that may lie off the edge (the learned net's)
+        sets it for every shaft segment; its False entries make their pixel sets
+        *bands* (:class:`Observation`). Empty or of another length: the detector does
+        not say; nothing is carried and no set is a band (the Canny detector's sets
+        lie on its edges).
     """
 
     segments: np.ndarray = field(default_factory=lambda: _empty(4))
@@ -86,6 +90,11 @@ class Observation:
     markers: (M, 2) detected marker centroids (empty when markers are off).
     edge_ids: (k,) int, which shaft edge each row of ``lines`` (polar models)
         or each entry of ``pixels`` (pixel models) belongs to (as in Detection).
+    bands: per entry of ``pixels``, True where the set is a heatmap band that no
+        sub-pixel refinement moved onto the image's edge (``Detection.refined``
+        False), so it may sit a few px off the silhouette; empty: none. The
+        particle filter weighs such a set's pixels by ``band_weight``
+        (:func:`graphtrack.estimate.observation_models.shaft_loglik`).
     """
 
     model: str
@@ -93,6 +102,7 @@ class Observation:
     pixels: list[np.ndarray] = field(default_factory=list)
     markers: np.ndarray = field(default_factory=lambda: _empty(2))
     edge_ids: np.ndarray = field(default_factory=_empty_ids)
+    bands: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     @property
     def has_shaft(self) -> bool:

@@ -236,6 +236,7 @@ class LearnedDetector:
         det.shaft_segments = assoc.segments
         det.shaft_lines = assoc.lines
         det.edge_ids = assoc.edge_ids
+        det.refined = np.zeros(len(assoc.segments), bool)   # the heatmap's bands, until moved
         if self.subpixel is None or not len(assoc.segments):
             return
         refined = refine_segments(img, assoc.segments, self.subpixel, camera)

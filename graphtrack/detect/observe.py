@@ -107,7 +107,8 @@ def make_observation(detection: Detection, model: str, alpha: float = ALPHA, bet
 
     endpoint = model.startswith("endpoint-")
     refined = np.asarray(getattr(detection, "refined", np.zeros(0)), bool).ravel()
-    refined = refined[ok] if len(refined) == len(ok) else np.zeros(len(segs), bool)
+    flagged = len(refined) == len(ok) and len(ok) > 0     # the detector says which sets are bands
+    refined = refined[ok] if flagged else np.zeros(len(segs), bool)
     sets = [(endpoints_set if endpoint else line_set)(H, seg, alpha, beta) for seg in segs]
     sets = [_thin(carry_to_segment(pts, seg) if r else pts, max_pixels) for pts, seg, r in zip(sets, segs, refined)]
 
@@ -133,6 +134,7 @@ def make_observation(detection: Detection, model: str, alpha: float = ALPHA, bet
     keep = [i for i, p in enumerate(sets) if len(p) > 0]
     obs.pixels = [sets[i] for i in keep]
     obs.edge_ids = ids[keep] if keep else np.zeros(0, dtype=int)
+    obs.bands = np.array([flagged and not refined[i] for i in keep], bool)
     return obs
 
 
@@ -157,7 +159,7 @@ def scale_observation(obs: Observation, s: float) -> Observation:
     return Observation(model=obs.model, lines=_scale_lines(obs.lines, s),
                        pixels=[_scale_points(p, s) for p in obs.pixels],
                        markers=_scale_points(np.asarray(obs.markers, float).reshape(-1, 2), s),
-                       edge_ids=np.asarray(obs.edge_ids).copy())
+                       edge_ids=np.asarray(obs.edge_ids).copy(), bands=np.asarray(obs.bands, bool).copy())
 
 
 def scale_detection(det: Detection, s: float) -> Detection:

@@ -17,14 +17,18 @@ R = cos(theta) x + sin(theta) y - rho (px) against the NEARER limb, R ~ N(0, sig
     log P = lambda sum_p w_p max(-R_p^2 / (2 sigma^2), -c^2 / 2),   w_p = min(1, n / m)
 
 (the floor: a Gaussian + uniform outlier max-mixture; lambda = ``pixel_weight``;
-n = ``pixel_effective_count`` per m-pixel edge set, 0: w_p = 1).
+n = ``pixel_effective_count`` per m-pixel edge set, 0: w_p = 1), times ``band_weight``
+b for the pixels of a set the observation marks a band (``Observation.bands``:
+the learned net's heatmap band, not moved onto the image's edge), as if their
+sigma were sigma / sqrt(b) inside the floor.
 Markers: log P = -sum_k cost(min(d_k, gate)), d_k (px) to the associated projected
 marker; cost "laplace" gamma d, "huber" u^2/2 up to u = k then k u - k^2/2 (u = d/s),
 "cauchy" log(1 + u^2); the best injective assignment per particle (all enumerated),
 markers facing away count as unmatched (cost gate).
 Degenerate projections (valid False) get ``INVALID_LOGLIK``.
 
-Defaults and their measurements: docs/decisions/pixel-effective-count.md, marker-gate.md.
+Defaults and their measurements: docs/decisions/pixel-effective-count.md, marker-gate.md,
+band-weight.md.
 """
 from __future__ import annotations
 
@@ -48,6 +52,11 @@ GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
 #: per edge (0: every pixel counts once): pf, smoother, batch; docs/decisions/pixel-effective-count.md
 PIXEL_EFFECTIVE_COUNT = 10.0
 SEARCH_PIXEL_EFFECTIVE_COUNT = 30.0  # the search's default (the smoother's; the pf passes its own n)
+#: weight of a heatmap band's pixels (Observation.bands): 1 keeps them as refined sets' (the
+#: smoother's search: its edge-bias state models the bands); the particle filter's 1/4, i.e.
+#: twice the pixel sigma (the bands lie up to ~4 px off); docs/decisions/band-weight.md
+BAND_WEIGHT = 1.0
+PF_BAND_WEIGHT = 0.25
 MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
 MARKER_GATE = 50.0     # px (paper: 20); docs/decisions/marker-gate.md
 MARKER_LOSS = "laplace"
@@ -193,13 +202,28 @@ def marker_loglik_mn(u: np.ndarray, v: np.ndarray, visible: np.ndarray, detected
     return -total
 
 
+def _set_weights(observation, sets: list, effective_count: float, band_weight: float) -> np.ndarray | None:
+    """Per-pixel weights (P,) of the non-empty ``sets`` of ``observation.pixels``: min(1, n / m)
+    per m-pixel set (n = ``effective_count``; 1 when n <= 0), times ``band_weight`` for a band
+    (``observation.bands``); None when every weight is 1."""
+    per_set = np.array([min(1.0, effective_count / len(p)) if effective_count and effective_count > 0 else 1.0
+                        for p in sets])
+    bands = np.asarray(getattr(observation, "bands", ()), bool).ravel()
+    nonempty = [i for i, p in enumerate(observation.pixels) if len(p)]
+    if band_weight != 1.0 and len(bands) == len(observation.pixels):
+        per_set = np.where(bands[nonempty], per_set * band_weight, per_set)
+    if np.all(per_set == 1.0):
+        return None
+    return np.concatenate([np.full(len(p), w) for p, w in zip(sets, per_set)])
+
+
 def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndarray,
                  gamma_rho: float = GAMMA_RHO, gamma_theta: float = GAMMA_THETA,
                  use_edge_ids: bool = False, pixel_sigma: float = PIXEL_SIGMA,
                  pixel_outlier_sigmas: float = PIXEL_OUTLIER_SIGMAS,
                  pixel_weight: float = PIXEL_WEIGHT, _buffers: dict | None = None,
                  pixel_effective_count: float = PIXEL_EFFECTIVE_COUNT,
-                 cos_sin: tuple | None = None) -> np.ndarray:
+                 cos_sin: tuple | None = None, band_weight: float = BAND_WEIGHT) -> np.ndarray:
     """The shaft term for ``observation.model`` over particles (N,).
 
     rho, theta (N, 2): projected edges (px, rad). ``cos_sin``: their
@@ -208,7 +232,8 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
 
     Pixel models with ``pixel_effective_count`` n > 0: the pixels of an edge
     set of m pixels each count min(1, n / m) (the edge is worth at most n
-    independent pixels), times ``pixel_weight``.
+    independent pixels), times ``pixel_weight``; a set the observation marks a
+    band (``observation.bands``) counts ``band_weight`` times that.
 
     Zeros (weights unchanged) when the frame has no shaft detection;
     INVALID_LOGLIK for particles with ``valid`` False.
@@ -227,9 +252,7 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
         sets = [np.asarray(p, float).reshape(-1, 2) for p in observation.pixels if len(p)]
         if not sets:
             return np.zeros(n)
-        pw = None
-        if pixel_effective_count and pixel_effective_count > 0:
-            pw = np.concatenate([np.full(len(p), min(1.0, pixel_effective_count / len(p))) for p in sets])
+        pw = _set_weights(observation, sets, pixel_effective_count, band_weight)
         ll = pixel_loglik(rho, theta, sets[0] if len(sets) == 1 else np.concatenate(sets),
                           pixel_sigma, pixel_outlier_sigmas, pixel_weight, _buffers, pw, cos_sin)
     ll = np.where(valid & np.isfinite(ll), ll, INVALID_LOGLIK)

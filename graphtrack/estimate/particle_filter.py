@@ -58,7 +58,9 @@ class ParticleFilter:
     gamma_rho (1/px), gamma_theta (1/rad): polar models; use_edge_ids: pair
     detected and projected edges by Observation.edge_ids instead of the best
     pairing per particle; pixel_sigma (px), pixel_outlier_sigmas,
-    pixel_weight: pixel models; marker_gamma (1/px), marker_gate (px; times
+    pixel_weight: pixel models; band_weight: the weight of a heatmap band's
+    pixels (Observation.bands; 1/4: twice the pixel sigma, docs/decisions/band-weight.md),
+    in the likelihood and the search; marker_gamma (1/px), marker_gate (px; times
     gate_scale, the full-size pixels per detection pixel, which the tracking
     pipeline sets to 1 / its detection scale, as for the smoother).
     Each Observation carries its own ``model``, which is what is scored.
@@ -82,6 +84,7 @@ class ParticleFilter:
                  marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE,
                  gate_scale: float = 1.0,
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
+                 band_weight: float = om.PF_BAND_WEIGHT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
@@ -104,7 +107,8 @@ class ParticleFilter:
                                   use_edge_ids=use_edge_ids, pixel_sigma=pixel_sigma,
                                   pixel_outlier_sigmas=pixel_outlier_sigmas,
                                   pixel_weight=pixel_weight,
-                                  pixel_effective_count=pixel_effective_count)
+                                  pixel_effective_count=pixel_effective_count,
+                                  band_weight=band_weight)
         if marker_loss not in om.MARKER_LOSSES:
             raise ValueError(f"unknown marker loss {marker_loss!r}")
         self.marker_gamma = float(marker_gamma)
@@ -124,7 +128,8 @@ class ParticleFilter:
                                      gamma_theta=gamma_theta, use_edge_ids=use_edge_ids,
                                      pixel_sigma=pixel_sigma, pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
                                      marker_gamma=marker_gamma, marker_gate=marker_gate,
-                                     pixel_effective_count=pixel_effective_count, marker_loss=marker_loss,
+                                     pixel_effective_count=pixel_effective_count, band_weight=band_weight,
+                                     marker_loss=marker_loss,
                                      marker_sigma=marker_sigma, marker_huber_k=marker_huber_k,
                                      motion_cov=np.diag(self.motion_std ** 2))
         self.reset()
