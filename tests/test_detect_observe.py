@@ -180,4 +180,10 @@ def test_bands_are_the_sets_of_edges_a_flagging_detector_did_not_refine():
         assert flagged.bands.tolist() == [False, True]
         assert scale_observation(flagged, 0.5).bands.tolist() == [False, True]
         assert make_observation(Detection(**base), model).bands.tolist() == [False, False]
+    # an empty set and a NaN segment are dropped with their flags: the bands stay aligned
+    three = np.vstack([[600.0, 10.0, 630.0, 20.0], segs[1], [np.nan] * 4])   # the first has no heatmap
+    det = Detection(shaft_segments=three, heatmap=H, edge_ids=np.array([0, 1, 2]),
+                    refined=np.array([True, False, True]))
+    obs = make_observation(det, "line-intensities")
+    assert len(obs.pixels) == 1 and obs.bands.tolist() == [True] and obs.edge_ids.tolist() == [1]
 

@@ -236,4 +236,16 @@ def test_a_band_counts_band_weight_times_a_refined_set():
     np.testing.assert_allclose(both, alone[0] + 0.25 * alone[1], rtol=1e-5)
     np.testing.assert_allclose(ll(sets), alone[0] + alone[1], rtol=1e-5)
     np.testing.assert_allclose(ll(sets, [False, True]), ll(sets), rtol=1e-12)   # default weight 1
-    assert om.PF_BAND_WEIGHT == 0.25 and ParticleFilter.__init__.__kwdefaults__["band_weight"] == om.PF_BAND_WEIGHT
+
+
+def test_the_band_weight_reaches_the_particle_filters_search_and_not_the_smoothers(scene):
+    """The particle filter scores bands at PF_BAND_WEIGHT in its likelihood and in its
+    start-up search; the smoother's search keeps 1 (docs/decisions/band-weight.md)."""
+    from graphtrack.estimate.smoother import FixedLagSmootherEstimator
+    from graphtrack.sim.synthetic import sequence
+
+    ctx = sequence(2, seed=0, scene=make_scene()).ctx
+    pf = ParticleFilter(ctx, particles=10)
+    assert pf.shaft_options["band_weight"] == om.PF_BAND_WEIGHT == 0.25
+    assert pf.search.scorer.shaft_options["band_weight"] == om.PF_BAND_WEIGHT
+    assert FixedLagSmootherEstimator(ctx).reinit.scorer.shaft_options["band_weight"] == 1.0

@@ -22,8 +22,9 @@ SOLD2's two outputs, segments and a line heatmap H, at camera rate:
 5. each associated shaft segment is moved onto the image's edge at full
    resolution (:mod:`graphtrack.detect.subpixel`; ``subpixel=False`` keeps
    the heatmap's segments); only the moved segments get new lines, and
-   ``Detection.refined`` marks them, so that their pixel sets are carried onto
-   them (:func:`graphtrack.detect.pixel_sets.carry_to_segment`). H is left as
+   ``Detection.refined`` (one flag per shaft segment) marks them, so that their
+   pixel sets are carried onto them (:func:`graphtrack.detect.pixel_sets.carry_to_segment`)
+   and the others' are known as bands (``Observation.bands``). H is left as
    the net made it.
 
 Weights: ``graphtrack/data/learned_detector.pt`` (shipped), or ``weights=FILE``

@@ -3,7 +3,7 @@
 Same graph as the online smoother (:mod:`graphtrack.estimate.smoother`):
 prior on frame 0 at E_0, a BetweenFactorPose3 between every pair of
 consecutive frames (always, so gaps in the detections stay solvable), each
-frame's robust detection factors (both images' in stereo,
+frame's robust detection factors but the online smoother's outlier frames' (below; both images' in stereo,
 :mod:`graphtrack.estimate.stereo`), and the edge-bias vectors (one per
 ``edge_bias_every`` frames; the pixel sets and the polar models' lines are on
 them from the first frame) with their Gauss-Markov chain
@@ -15,9 +15,10 @@ estimate's std, so the batch refines exactly the detections the online
 smoother saw; without the std every frame had the widest gate). A frame the
 online smoother flagged an outlier frame (its ``outlier`` column: a good lock
 did not explain it, an occluder's edges near the shaft, or its detections drove
-the estimate out of the hand-eye prior's region) keeps only its between
-factors here too: over the whole recording such frames otherwise pull every
-E_t towards the occluder (docs/decisions/batch-skips-outlier-frames.md). ``finish``
+the estimate out of the hand-eye prior's region) gets no detection factors here
+either, only its motion (and on frame 0 prior) factors, and 1 in the
+``outlier_online`` column: over the whole recording such frames otherwise pull
+every E_t towards the occluder (docs/decisions/batch-skips-outlier-frames.md). ``finish``
 runs Levenberg-Marquardt over all frames (:mod:`graphtrack.estimate.lm`,
 gtsam's iteration driven from Python so that the factor callbacks see the
 Values without pybind11 copying it into each one), initialised from the
@@ -63,9 +64,10 @@ class BatchEstimator:
     uses_observations = True
     stochastic = False
     supported_observations = OBSERVATION_MODELS
-    #: std_*, and ``kept_online``: 1 where the refined pose left the hand-eye prior's 99.9 % region
-    #: (a run-away refinement) and the online smoother's pose, nearer the prior, was kept instead
-    extra_columns = STD_COLUMNS + ("kept_online",)
+    #: std_*, ``kept_online``: 1 where the refined pose left the hand-eye prior's 99.9 % region
+    #: (a run-away refinement) and the online smoother's pose, nearer the prior, was kept instead;
+    #: ``outlier_online``: 1 where the online smoother flagged the frame (its detections left out)
+    extra_columns = STD_COLUMNS + ("kept_online", "outlier_online")
 
     def __init__(self, ctx: TrackingContext, markers: bool = True,
                  prior_sigma_b: float = PRIOR_SIGMA_B, prior_sigma_w: float = PRIOR_SIGMA_W,
@@ -222,6 +224,7 @@ class BatchEstimator:
                 E, covs[k], kept = self.initial[k], None, kept + 1
             cov = None if covs[k] is None else left_from_right_cov(E, covs[k])
             std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            out.append(Estimate(E, std, cov, {**estimate_extra(cov), "kept_online": float(away)}))
+            out.append(Estimate(E, std, cov, {**estimate_extra(cov), "kept_online": float(away),
+                                              "outlier_online": float(self.outlier[k])}))
         self.stats["frames_outside_prior"] = float(kept)
         return out

@@ -232,8 +232,9 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
 
     Pixel models with ``pixel_effective_count`` n > 0: the pixels of an edge
     set of m pixels each count min(1, n / m) (the edge is worth at most n
-    independent pixels), times ``pixel_weight``; a set the observation marks a
-    band (``observation.bands``) counts ``band_weight`` times that.
+    independent pixels), times ``pixel_weight``. Whatever n, a set the
+    observation marks a band (``observation.bands``) counts ``band_weight``
+    times that.
 
     Zeros (weights unchanged) when the frame has no shaft detection;
     INVALID_LOGLIK for particles with ``valid`` False.

@@ -133,8 +133,9 @@ class Scorer:
 _SHAFT_KEYS = ("gamma_rho", "gamma_theta", "use_edge_ids", "pixel_sigma", "pixel_outlier_sigmas",
                "pixel_weight", "pixel_effective_count", "band_weight")
 #: the particle filter's likelihood keywords and the search's defaults (the particle
-#: filter's, except pixel_effective_count, used where the caller passes none: the
-#: smoother; the particle filter passes its own; docs/decisions/pixel-effective-count.md)
+#: filter's, except pixel_effective_count and band_weight, used where the caller passes
+#: none: the smoother; the particle filter passes its own; docs/decisions/pixel-effective-count.md,
+#: band-weight.md)
 _LIKELIHOOD_OPTIONS = dict(gamma_rho=om.GAMMA_RHO, gamma_theta=om.GAMMA_THETA, use_edge_ids=False,
                            pixel_sigma=om.PIXEL_SIGMA, pixel_outlier_sigmas=om.PIXEL_OUTLIER_SIGMAS,
                            pixel_weight=om.PIXEL_WEIGHT, pixel_effective_count=om.SEARCH_PIXEL_EFFECTIVE_COUNT,
