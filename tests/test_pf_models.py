@@ -239,13 +239,13 @@ def test_a_band_counts_band_weight_times_a_refined_set():
 
 
 def test_the_band_weight_reaches_the_particle_filters_search_and_not_the_smoothers(scene):
-    """The particle filter scores bands at PF_BAND_WEIGHT in its likelihood and in its
+    """The particle filter scores bands at BAND_WEIGHT in its likelihood and in its
     start-up search; the smoother's search keeps 1 (docs/decisions/band-weight.md)."""
     from graphtrack.estimate.smoother import FixedLagSmootherEstimator
     from graphtrack.sim.synthetic import sequence
 
     ctx = sequence(2, seed=0, scene=make_scene()).ctx
     pf = ParticleFilter(ctx, particles=10)
-    assert pf.shaft_options["band_weight"] == om.PF_BAND_WEIGHT == 0.25
-    assert pf.search.scorer.shaft_options["band_weight"] == om.PF_BAND_WEIGHT
+    assert pf.shaft_options["band_weight"] == om.BAND_WEIGHT == 0.25
+    assert pf.search.scorer.shaft_options["band_weight"] == om.BAND_WEIGHT
     assert FixedLagSmootherEstimator(ctx).reinit.scorer.shaft_options["band_weight"] == 1.0

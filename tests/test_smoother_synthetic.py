@@ -240,3 +240,33 @@ def test_polar_lines_join_the_edge_bias_state_once_settled():
         keys_per_frame.append((key[0], newest.get(key)))
     assert keys_per_frame[30] == ("x", 1)          # 1 s: lines on E_t alone
     assert keys_per_frame[89] == ("y", 2)          # 3 s: settled, lines on (E_t, b_j)
+
+
+def test_a_bands_pixel_factor_costs_band_weight_times_a_refined_sets():
+    """The pixel factor's cost is w sum_j rho(z_j) (factors/shaft_pixels.py): the same
+    set marked a band (Observation.bands) costs FactorOptions.band_weight (1/4) times as
+    much at any pose, and 1x with band_weight 1 (hand-derived from the linearity in w)."""
+    import dataclasses
+
+    import gtsam
+
+    from graphtrack.estimate.graph import FactorOptions, frame_factor_groups
+    from graphtrack.estimate.observation_models import BAND_WEIGHT
+
+    robot, cam, E0, frames = sequence(2, seed=0, scene=SCENE, pixel_noise=1.0, marker_noise=0.0)
+    f = frames[0]
+    off = gtsam.Pose3(gtsam.Rot3.Rz(0.01), np.array([0.002, -0.001, 0.0])).compose(gtsam.Pose3(E0))
+    opts = FactorOptions(edge_bias=False)
+
+    def cost(bands, o=opts):
+        obs = Observation("line-intensities", pixels=f.pixels, markers=np.zeros((0, 2)),
+                          bands=np.array(bands, bool))
+        shaft, _ = frame_factor_groups(0, f.q, obs, robot, cam.K, o, E0)
+        v = gtsam.Values()
+        v.insert(shaft[0].keys()[0], off)
+        return [fac.error(v) for fac in shaft]
+
+    plain, banded = cost([False, False]), cost([False, True])
+    assert BAND_WEIGHT == 0.25 and plain[1] > 1.0
+    np.testing.assert_allclose(banded, [plain[0], BAND_WEIGHT * plain[1]], rtol=1e-9)
+    np.testing.assert_allclose(cost([True, True], dataclasses.replace(opts, band_weight=1.0)), plain, rtol=1e-12)

@@ -26,7 +26,7 @@ from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import shaft_pixels_factor
-from graphtrack.estimate.observation_models import PIXEL_EFFECTIVE_COUNT
+from graphtrack.estimate.observation_models import BAND_WEIGHT, PIXEL_EFFECTIVE_COUNT
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
 from graphtrack.geometry.cylinder import ShaftAxis
@@ -88,6 +88,8 @@ class FactorOptions:
     pixel_effective_count n: an m > n pixel set's cost is weighted n / m, so it
     counts as n independent pixels (0: every pixel counts; the robust kernel still
     judges each pixel on pixel_sigma).
+    band_weight: the weight of the pixel set of an edge the detector's refinement did
+    not move onto the image's edge (``Observation.bands``), times the above.
     edge_bias: carry the detector's edge-bias vector b = (lateral, lateral slope,
     width, width slope) px (:mod:`factors.edge_bias`), a Gauss-Markov process with
     stationary stds edge_bias_sigma_lateral / _lateral_slope / _width /
@@ -96,7 +98,7 @@ class FactorOptions:
     (the smoother's only once settled, ``line_bias`` of :func:`frame_factor_groups`).
 
     Why these defaults, with measurements: docs/decisions/pixel-effective-count.md,
-    edge-bias-state.md, marker-gate.md, painted-disc-markers.md.
+    edge-bias-state.md, marker-gate.md, painted-disc-markers.md, band-weight.md.
     """
 
     pixel_sigma: float = 1.5
@@ -110,6 +112,7 @@ class FactorOptions:
     markers: bool = True
     max_pixels: int = 0
     pixel_effective_count: float = PIXEL_EFFECTIVE_COUNT
+    band_weight: float = BAND_WEIGHT
     gate_scale: float = 1.0
     edge_bias: bool = True
     edge_bias_sigma_lateral: float = 0.3
@@ -198,16 +201,21 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                                                  opts.line_sigma_theta, kern, pairing, lb, direction,
                                                  extrinsic))
         else:
-            sets = [np.asarray(px, float).reshape(-1, 2) for px in observation.pixels]
-            sets = [px[np.all(np.isfinite(px), axis=1)] for px in sets]
-            sets = [px for px in sets if len(px)]
+            bands = np.asarray(getattr(observation, "bands", ()), bool).ravel()
+            if len(bands) != len(observation.pixels):
+                bands = np.zeros(len(observation.pixels), bool)
+            sets = [(np.asarray(px, float).reshape(-1, 2), band) for px, band in zip(observation.pixels, bands)]
+            sets = [(px[np.all(np.isfinite(px), axis=1)], band) for px, band in sets]
+            sets = [(px, band) for px, band in sets if len(px)]
             pairing = LimbPairing() if len(sets) > 1 else None
-            for px in sets:
+            for px, band in sets:
                 if opts.max_pixels and len(px) > opts.max_pixels:
                     px = px[np.linspace(0, len(px) - 1, opts.max_pixels).astype(int)]
                 w = 1.0
                 if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
                     w = opts.pixel_effective_count / len(px)  # the m pixels count as n_eff
+                if band:
+                    w *= opts.band_weight
                 f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w, b, direction,
                                         extrinsic)
                 if f is not None:

@@ -52,11 +52,12 @@ GAMMA_THETA = 50.0     # 1/rad: 0.02 rad (1.15 deg) of theta error costs 1 nat
 #: per edge (0: every pixel counts once): pf, smoother, batch; docs/decisions/pixel-effective-count.md
 PIXEL_EFFECTIVE_COUNT = 10.0
 SEARCH_PIXEL_EFFECTIVE_COUNT = 30.0  # the search's default (the smoother's; the pf passes its own n)
-#: weight of a heatmap band's pixels (Observation.bands): 1 keeps them as refined sets' (the
-#: smoother's search: its edge-bias state models the bands); the particle filter's 1/4, i.e.
-#: twice the pixel sigma (the bands lie up to ~4 px off); docs/decisions/band-weight.md
-BAND_WEIGHT = 1.0
-PF_BAND_WEIGHT = 0.25
+#: weight of a heatmap band's pixels (Observation.bands) in the estimators: the particle
+#: filter's likelihood and search, the smoother's and batch's pixel factors: 1/4, i.e. twice
+#: the pixel sigma (the bands lie up to ~4 px off); the smoother's search keeps 1 (measured
+#: worse at 1/4); docs/decisions/band-weight.md
+BAND_WEIGHT = 0.25
+SEARCH_BAND_WEIGHT = 1.0
 MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
 MARKER_GATE = 50.0     # px (paper: 20); docs/decisions/marker-gate.md
 MARKER_LOSS = "laplace"
@@ -223,7 +224,7 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
                  pixel_outlier_sigmas: float = PIXEL_OUTLIER_SIGMAS,
                  pixel_weight: float = PIXEL_WEIGHT, _buffers: dict | None = None,
                  pixel_effective_count: float = PIXEL_EFFECTIVE_COUNT,
-                 cos_sin: tuple | None = None, band_weight: float = BAND_WEIGHT) -> np.ndarray:
+                 cos_sin: tuple | None = None, band_weight: float = 1.0) -> np.ndarray:
     """The shaft term for ``observation.model`` over particles (N,).
 
     rho, theta (N, 2): projected edges (px, rad). ``cos_sin``: their

@@ -84,7 +84,7 @@ class ParticleFilter:
                  marker_gamma: float = om.MARKER_GAMMA, marker_gate: float = om.MARKER_GATE,
                  gate_scale: float = 1.0,
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
-                 band_weight: float = om.PF_BAND_WEIGHT,
+                 band_weight: float = om.BAND_WEIGHT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,

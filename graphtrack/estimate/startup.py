@@ -139,7 +139,7 @@ _SHAFT_KEYS = ("gamma_rho", "gamma_theta", "use_edge_ids", "pixel_sigma", "pixel
 _LIKELIHOOD_OPTIONS = dict(gamma_rho=om.GAMMA_RHO, gamma_theta=om.GAMMA_THETA, use_edge_ids=False,
                            pixel_sigma=om.PIXEL_SIGMA, pixel_outlier_sigmas=om.PIXEL_OUTLIER_SIGMAS,
                            pixel_weight=om.PIXEL_WEIGHT, pixel_effective_count=om.SEARCH_PIXEL_EFFECTIVE_COUNT,
-                           band_weight=om.BAND_WEIGHT,
+                           band_weight=om.SEARCH_BAND_WEIGHT,
                            marker_gamma=om.MARKER_GAMMA, marker_gate=om.MARKER_GATE,
                            marker_loss=om.MARKER_LOSS, marker_sigma=om.MARKER_SIGMA,
                            marker_huber_k=om.MARKER_HUBER_K)
