@@ -93,8 +93,8 @@ class Observation:
     bands: per entry of ``pixels``, True where the set is a heatmap band that no
         sub-pixel refinement moved onto the image's edge (``Detection.refined``
         False), so it may sit a few px off the silhouette; empty: none. The
-        particle filter weighs such a set's pixels by ``band_weight``
-        (:func:`graphtrack.estimate.observation_models.shaft_loglik`).
+        particle filter and the smoother's and batch's pixel factors weigh such a
+        set's pixels by ``band_weight`` (docs/decisions/band-weight.md).
     """
 
     model: str
