@@ -105,6 +105,13 @@ class Observation:
     bands: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     @property
+    def pixel_bands(self) -> np.ndarray:
+        """``bands`` as one flag per entry of ``pixels`` (all False when the
+        observation marks none, or not one flag per set)."""
+        b = np.asarray(self.bands, bool).ravel()
+        return b if len(b) == len(self.pixels) else np.zeros(len(self.pixels), bool)
+
+    @property
     def has_shaft(self) -> bool:
         return len(self.lines) > 0 or any(len(p) > 0 for p in self.pixels)
 

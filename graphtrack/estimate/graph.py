@@ -201,10 +201,8 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                                                  opts.line_sigma_theta, kern, pairing, lb, direction,
                                                  extrinsic))
         else:
-            bands = np.asarray(getattr(observation, "bands", ()), bool).ravel()
-            if len(bands) != len(observation.pixels):
-                bands = np.zeros(len(observation.pixels), bool)
-            sets = [(np.asarray(px, float).reshape(-1, 2), band) for px, band in zip(observation.pixels, bands)]
+            sets = [(np.asarray(px, float).reshape(-1, 2), band)
+                    for px, band in zip(observation.pixels, observation.pixel_bands)]
             sets = [(px[np.all(np.isfinite(px), axis=1)], band) for px, band in sets]
             sets = [(px, band) for px, band in sets if len(px)]
             pairing = LimbPairing() if len(sets) > 1 else None

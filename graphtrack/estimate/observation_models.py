@@ -209,10 +209,9 @@ def _set_weights(observation, sets: list, effective_count: float, band_weight: f
     (``observation.bands``); None when every weight is 1."""
     per_set = np.array([min(1.0, effective_count / len(p)) if effective_count and effective_count > 0 else 1.0
                         for p in sets])
-    bands = np.asarray(getattr(observation, "bands", ()), bool).ravel()
-    nonempty = [i for i, p in enumerate(observation.pixels) if len(p)]
-    if band_weight != 1.0 and len(bands) == len(observation.pixels):
-        per_set = np.where(bands[nonempty], per_set * band_weight, per_set)
+    if band_weight != 1.0:
+        bands = observation.pixel_bands[[i for i, p in enumerate(observation.pixels) if len(p)]]
+        per_set = np.where(bands, per_set * band_weight, per_set)
     if np.all(per_set == 1.0):
         return None
     return np.concatenate([np.full(len(p), w) for p, w in zip(sets, per_set)])
