@@ -248,8 +248,26 @@ def test_window_challenge_runs_after_8_and_16_frames_used():
     for t in range(40):
         q, fr = _frame(world, t)
         est.step(fr, _obs(world, q, world.E_true, t))
-    assert est.reinit.challenges == 2 + 2 * est.reinit.switches
+    assert est.reinit.challenges == 2
     assert make_estimator("pf", world.ctx, particles=200).search.window == 0
+
+
+def test_a_switch_by_the_challenge_does_not_restart_its_schedule():
+    """An estimator that stays at a wrong mode (5 mm along the shaft, 2 deg) makes the
+    challenge switch at 8 frames used and again at 16; no third challenge follows (a
+    restarted count would challenge, and switch, every 8 frames)."""
+    world = make_world(7, 4.0, 2.0)
+    x_true = matrix_to_bw(world.E_true @ invert(world.ctx.handeye))
+    wrong = bw_to_matrix(x_true + np.array([0.004, -0.003, 0.0, 0.0, 0.035, 0.0])) @ world.ctx.handeye
+    policy = SearchInit(world.ctx, seed=0, window=6, monitor=False, innovation_gate=False)
+    q, _ = _frame(world, 0)
+    assert policy.propose(q, _obs(world, q, world.E_true, 0), world.ctx.handeye, True) is not None
+    adopted_at = []
+    for t in range(1, 41):
+        q, _ = _frame(world, 3 * t)
+        if policy.propose(q, _obs(world, q, world.E_true, t), wrong, True) is not None:
+            adopted_at.append(t)
+    assert adopted_at == [8, 16] and policy.switches == 2 and policy.challenges == 2
 
 
 def _lines_by_features(world, q, x):

@@ -75,9 +75,12 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   slide along its axis and its tilt towards the camera are barely seen, and a
   mode 5-10 mm off can explain a frame almost as well as the truth), but the
   modes of different frames disagree as the tool moves. After 8 and 16 frames
-  used since the last adoption (start-up or re-initialisation), the search runs
-  on ``window`` frames (0: no challenge; the smoother's default 6) spread over
-  those frames (E is nearly constant over half a second):
+  used since the last start-up or re-initialisation, the search runs on
+  ``window`` frames (0: no challenge; the smoother's default 6) spread over
+  the frames used since the last adoption (E is nearly constant over half a
+  second). A switch made by the challenge itself does not restart the count:
+  restarted, a search that prefers a mode the estimator then leaves switched
+  every 8 frames (docs/decisions/window-challenge.md). The search
   it maximises sum_k log P(z_k | E(x)) + the hand-eye prior. Its mode x_w is
   adopted when it is a different mode (outside the current estimate's
   covariance gate, as :meth:`SearchInit.near_lock`, without the motion term)
@@ -367,7 +370,10 @@ class SearchInit:
         if gain <= len(sel) * self.margin:
             return None
         self.switches += 1
-        return self._adopt(res)
+        used = self.used
+        E = self._adopt(res)
+        self.used = used   # the schedule runs from the start, not from this switch (module doc)
+        return E
 
     def _same_mode(self, x: np.ndarray, x_cur: np.ndarray, cov: np.ndarray | None) -> bool:
         """x lies within the current estimate's covariance gate (cov + (LOCK_FLOOR spread)^2;
@@ -377,7 +383,7 @@ class SearchInit:
 
 
 def _scheduled(used: int) -> bool:
-    """The window challenge runs after 8 and 16 frames used since an adoption (later ones
+    """The window challenge runs after 8 and 16 frames used since a start (later ones
     switched to modes the scorer prefers and the smoother's edge-bias model does not:
     docs/decisions/window-challenge.md)."""
     return used in (8, 16)
