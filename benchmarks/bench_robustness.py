@@ -28,6 +28,12 @@ tracking over any 10-frame window (by more than WORSE_TOL_PX: differences
 under a pixel are the detector's noise, not a failure; the strict fraction is
 reported too); the fraction of re-acquisitions within 15 frames; smoother
 p95 / batch p95. Plot: robustness.png (per-recording mean error, CDF).
+
+The causal bound: on the recordings whose first disturbance comes after frame
+15, the fraction on which the batch run on frames 0-15 alone has its tip
+within 5 px at frame 15 (what those frames allow any online estimator with
+these observation models), beside each online estimator's fraction there
+(docs/decisions/causal-bound.md).
 """
 from __future__ import annotations
 
@@ -94,8 +100,14 @@ def disturbances(recording: Path) -> list[tuple[int, int]]:
 
 def tip_errors(cell_dir: Path) -> np.ndarray | None:
     """Per-frame 2-D tip error (px) against the exact tip, by frame index; None if the cell failed."""
-    p = cell_dir / "truth_errors.csv"
-    if not (cell_dir / "done.json").is_file() or not p.is_file():
+    if not (cell_dir / "done.json").is_file():
+        return None
+    return tip_errors_csv(cell_dir / "truth_errors.csv")
+
+
+def tip_errors_csv(p: Path) -> np.ndarray | None:
+    """Per-frame 2-D tip error (px) of one truth_errors.csv, by frame index; None if missing."""
+    if not p.is_file():
         return None
     rows = np.genfromtxt(p, delimiter=",", names=True)
     rows = np.atleast_1d(rows)
@@ -152,6 +164,42 @@ def summarise(figs: list[dict]) -> dict:
             "reacquired15": float(np.mean(np.asarray(reacq) <= LIMIT)) if reacq else float("nan")}
 
 
+def _causal_cell(args) -> float | None:
+    """Tip error (px) at frame LIMIT of the batch run on frames 0..LIMIT of one recording."""
+    path, out = args
+    from graphtrack.threads import limit_threads
+    from graphtrack.track import TrackOptions, track
+
+    limit_threads(1)
+    out = Path(out)
+    if not (out / "truth_errors.csv").is_file():
+        track(path, out, TrackOptions(estimator="batch", observation="line-intensities"), progress=False,
+              quiet=True, max_frames=LIMIT + 1)
+    err = tip_errors_csv(out / "truth_errors.csv")
+    return float(err[LIMIT]) if err is not None and len(err) > LIMIT else None
+
+
+def causal_bound(study: Path, paths: list[str], workers: int) -> dict:
+    """What frames 0..LIMIT allow: on the recordings whose first disturbance comes after frame
+    LIMIT, the fraction on which the batch fit to those frames alone (the best any online
+    estimator can do with the same observation models) has its tip within CONVERGED_PX at
+    frame LIMIT, next to each online estimator's own fraction there. A start-up that fails
+    this bound cannot converge within LIMIT frames (docs/decisions/robustness-benchmark.md)."""
+    from graphtrack.eval.robustness import CONVERGED_PX
+
+    idx = [i for i, p in enumerate(paths) if all(a > LIMIT for a, _ in disturbances(Path(p)))]
+    jobs = [(paths[i], str(study / "runs" / Path(paths[i]).name / f"batch-causal{LIMIT}")) for i in idx]
+    with ProcessPoolExecutor(max(1, workers)) as ex:
+        tips = list(ex.map(_causal_cell, jobs))
+    ok = [(i, t) for i, t in zip(idx, tips) if t is not None]
+    res = {"recordings": len(ok), "batch": float(np.mean([t < CONVERGED_PX for _, t in ok])) if ok else float("nan")}
+    for est in ONLINE:
+        at = [tip_errors(study / "runs" / Path(paths[i]).name / f"{est}-line-intensities") for i, _ in ok]
+        res[est] = float(np.mean([e is not None and len(e) > LIMIT and e[LIMIT] < CONVERGED_PX for e in at])) \
+            if ok else float("nan")
+    return res
+
+
 def plot(study: Path, per_est: dict[str, list[dict]]) -> str:
     import matplotlib
 
@@ -191,6 +239,15 @@ def table(res: dict) -> str:
     return "\n".join(rows)
 
 
+def bound_table(b: dict) -> str:
+    """The causal bound (:func:`causal_bound`) as a markdown table."""
+    rows = ["| | fraction |", "|---|---|",
+            f"| batch on frames 0-{LIMIT} only (the bound) | {b['batch']:.3g} |"]
+    rows += [f"| {est} | {b[est]:.3g} |" for est in ONLINE]
+    rows.append(f"| recordings (first disturbance after frame {LIMIT}) | {b['recordings']} |")
+    return "\n".join(rows)
+
+
 def run(results: dict, n: int = RECORDINGS, workers: int | None = None, ray: str | None = None,
         seed0: int = SEED0) -> dict:
     from graphtrack.study.cells import StudyOptions
@@ -212,9 +269,11 @@ def run(results: dict, n: int = RECORDINGS, workers: int | None = None, ray: str
         res[f"never_worse_{est}"] = res[est]["never_worse"]
         res[f"reacquired15_{est}"] = res[est]["reacquired15"]
     res["p95_ratio_smoother_batch"] = res["smoother"]["mean_px_p95"] / res["batch"]["mean_px_p95"]
+    res["causal_bound"] = causal_bound(study, paths, workers)
     res["seeds"] = f"{seed0}-{seed0 + n - 1}"
     res["plots"] = [plot(study, per_est)]
     res.setdefault("tables", {})[f"{n} randomized recordings (seeds {res['seeds']}, held out)"] = table(res)
+    res["tables"][f"tip within 5 px at frame {LIMIT}: what frames 0-{LIMIT} allow"] = bound_table(res["causal_bound"])
     (study / "robustness.json").write_text(json.dumps({"summary": res, "per_recording": per_est}, indent=1,
                                                       default=float))
     print(table(res))
