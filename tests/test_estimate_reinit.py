@@ -262,12 +262,14 @@ def test_a_switch_by_the_challenge_does_not_restart_its_schedule():
     policy = SearchInit(world.ctx, seed=0, window=6, monitor=False, innovation_gate=False)
     q, _ = _frame(world, 0)
     assert policy.propose(q, _obs(world, q, world.E_true, 0), world.ctx.handeye, True) is not None
-    adopted_at = []
+    adopted_at, after = [], []
     for t in range(1, 41):
         q, _ = _frame(world, 3 * t)
         if policy.propose(q, _obs(world, q, world.E_true, t), wrong, True) is not None:
             adopted_at.append(t)
+            after.append((policy.used, len(policy.history)))
     assert adopted_at == [8, 16] and policy.switches == 2 and policy.challenges == 2
+    assert after == [(8, 0), (16, 0)]      # the count kept, the history restarted at each switch
 
 
 def _lines_by_features(world, q, x):

@@ -78,10 +78,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   used since the last start-up or re-initialisation, the search runs on
   ``window`` frames (0: no challenge; the smoother's default 6) spread over
   the frames used since the last adoption (E is nearly constant over half a
-  second). A switch made by the challenge itself does not restart the count:
-  restarted, a search that prefers a mode the estimator then leaves switched
-  every 8 frames (docs/decisions/window-challenge.md). The search
-  it maximises sum_k log P(z_k | E(x)) + the hand-eye prior. Its mode x_w is
+  second). A switch made by the challenge itself is an adoption that keeps the
+  count, so there are at most two challenges per start
+  (docs/decisions/window-challenge.md). The search maximises
+  sum_k log P(z_k | E(x)) + the hand-eye prior. Its mode x_w is
   adopted when it is a different mode (outside the current estimate's
   covariance gate, as :meth:`SearchInit.near_lock`, without the motion term)
   and explains those frames better than the estimates did, by more than
@@ -180,13 +180,18 @@ class SearchInit:
         self.window = int(window)    # frames of the window challenge (0: no challenge)
         self.history: deque = deque(maxlen=HISTORY)   # (q, observation, loglik at the estimate) of frames used
         self.challenges = self.switches = 0
-        self.used = 0                # frames appended to the history since the last adoption
+        self.used = 0                # frames used since the last start (the challenge's schedule)
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
 
-    def _adopt(self, res: SearchResult) -> np.ndarray:
+    def _adopt(self, res: SearchResult, keep_schedule: bool = False) -> np.ndarray:
+        """Adopt a search result: forget the current estimate (:meth:`_forget`), keeping the
+        challenge's count when ``keep_schedule`` (a switch by the challenge); E (4x4)."""
+        used = self.used
         self._forget()
+        if keep_schedule:
+            self.used = used
         self.count += 1
         self.result = res
         return bw_to_matrix(res.x) @ self.E_ref
@@ -370,10 +375,7 @@ class SearchInit:
         if gain <= len(sel) * self.margin:
             return None
         self.switches += 1
-        used = self.used
-        E = self._adopt(res)
-        self.used = used   # the schedule runs from the start, not from this switch (module doc)
-        return E
+        return self._adopt(res, keep_schedule=True)
 
     def _same_mode(self, x: np.ndarray, x_cur: np.ndarray, cov: np.ndarray | None) -> bool:
         """x lies within the current estimate's covariance gate (cov + (LOCK_FLOOR spread)^2;
