@@ -211,7 +211,8 @@ def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
 
     from graphtrack.sim.simulate import simulate
 
-    rec = simulate(tmp_path / "rec", frames=60, size=(120, 160), form="folder", progress=False)
+    # 200 frames: the run must outlast the poll below also when the machine is loaded
+    rec = simulate(tmp_path / "rec", frames=200, size=(120, 160), form="folder", progress=False)
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=str(REPO))
     p = subprocess.Popen([sys.executable, "-m", "graphtrack.cli", "track", str(rec), "--out", str(out), "--quiet",
@@ -228,7 +229,7 @@ def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
         assert p.returncode == 130 and "interrupted" in err, err
     else:
         assert p.returncode == -signal.SIGKILL
-    assert 3 <= csv_path.read_text().count("\n") < 61
+    assert 3 <= csv_path.read_text().count("\n") < 201
     assert_outputs_sane(out)
 
 
