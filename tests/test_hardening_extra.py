@@ -215,8 +215,11 @@ def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
     rec = simulate(tmp_path / "rec", frames=200, size=(120, 160), form="folder", progress=False)
     out = tmp_path / "out"
     env = dict(os.environ, PYTHONPATH=str(REPO))
+    # SIGINT as from a terminal: not ignored in the child, whatever this process inherited
+    default_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)   # noqa: E731
     p = subprocess.Popen([sys.executable, "-m", "graphtrack.cli", "track", str(rec), "--out", str(out), "--quiet",
-                          "--estimator", "pf", "--particles", "20000"], env=env, stderr=subprocess.PIPE, text=True)
+                          "--estimator", "pf", "--particles", "20000"], env=env, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=default_sigint)
     csv_path, t0 = out / "trajectory.csv", time.monotonic()
     while p.poll() is None and time.monotonic() - t0 < 120:
         if csv_path.is_file() and csv_path.read_text().count("\n") >= 3:   # header + 2 rows
@@ -226,7 +229,7 @@ def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
     err = p.communicate(timeout=60)[1]
     assert "Traceback" not in err and "internal error" not in err, err
     if sig == "SIGINT":
-        assert p.returncode == 130 and "interrupted" in err, err
+        assert p.returncode == 130 and "interrupted" in err, (p.returncode, signal.getsignal(signal.SIGINT), err)
     else:
         assert p.returncode == -signal.SIGKILL
     assert 3 <= csv_path.read_text().count("\n") < 201
