@@ -26,7 +26,7 @@ from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import shaft_pixels_factor
-from graphtrack.estimate.observation_models import BAND_WEIGHT, PIXEL_EFFECTIVE_COUNT
+from graphtrack.estimate.observation_models import BAND_WEIGHT, PIXEL_EFFECTIVE_COUNT, set_weight
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
 from graphtrack.geometry.cylinder import ShaftAxis
@@ -209,11 +209,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
             for px, band in sets:
                 if opts.max_pixels and len(px) > opts.max_pixels:
                     px = px[np.linspace(0, len(px) - 1, opts.max_pixels).astype(int)]
-                w = 1.0
-                if opts.pixel_effective_count > 0 and len(px) > opts.pixel_effective_count:
-                    w = opts.pixel_effective_count / len(px)  # the m pixels count as n_eff
-                if band:
-                    w *= opts.band_weight
+                w = set_weight(len(px), band, opts.pixel_effective_count, opts.band_weight)
                 f = shaft_pixels_factor(x, px, axis, K, opts.pixel_sigma, kern, pairing, w, b, direction,
                                         extrinsic)
                 if f is not None:

@@ -203,16 +203,19 @@ def marker_loglik_mn(u: np.ndarray, v: np.ndarray, visible: np.ndarray, detected
     return -total
 
 
-def _set_weights(observation, sets: list, effective_count: float, band_weight: float) -> np.ndarray | None:
-    """Per-pixel weights (P,) of the non-empty ``sets`` of ``observation.pixels``: min(1, n / m)
-    per m-pixel set (n = ``effective_count``; 1 when n <= 0), times ``band_weight`` for a band
-    (``observation.bands``); None when every weight is 1."""
-    per_set = np.array([min(1.0, effective_count / len(p)) if effective_count and effective_count > 0 else 1.0
-                        for p in sets])
-    if band_weight != 1.0:
-        bands = observation.pixel_bands[[i for i, p in enumerate(observation.pixels) if len(p)]]
-        per_set = np.where(bands, per_set * band_weight, per_set)
-    if np.all(per_set == 1.0):
+def set_weight(m: int, band: bool, effective_count: float, band_weight: float) -> float:
+    """The weight of each pixel of an m-pixel edge set: min(1, n / m) (n = ``effective_count``;
+    1 when n <= 0), times ``band_weight`` for a band (``Observation.bands``). The particle
+    filter's likelihood and the factor graph's pixel factors both weigh sets by it."""
+    w = min(1.0, effective_count / m) if effective_count and effective_count > 0 else 1.0
+    return w * band_weight if band else w
+
+
+def _set_weights(sets: list, bands: list, effective_count: float, band_weight: float) -> np.ndarray | None:
+    """Per-pixel weights (P,) of ``sets`` with their band flags (:func:`set_weight`); None when
+    every weight is 1."""
+    per_set = [set_weight(len(p), b, effective_count, band_weight) for p, b in zip(sets, bands)]
+    if all(w == 1.0 for w in per_set):
         return None
     return np.concatenate([np.full(len(p), w) for p, w in zip(sets, per_set)])
 
@@ -250,10 +253,12 @@ def shaft_loglik(observation, rho: np.ndarray, theta: np.ndarray, valid: np.ndar
         ll = polar_loglik(rho, theta() if callable(theta) else theta, observation.lines,
                           gamma_rho, gamma_theta, ids)
     else:
-        sets = [np.asarray(p, float).reshape(-1, 2) for p in observation.pixels if len(p)]
-        if not sets:
+        pairs = [(np.asarray(p, float).reshape(-1, 2), b)
+                 for p, b in zip(observation.pixels, observation.pixel_bands) if len(p)]
+        if not pairs:
             return np.zeros(n)
-        pw = _set_weights(observation, sets, pixel_effective_count, band_weight)
+        sets, bands = [p for p, _ in pairs], [b for _, b in pairs]
+        pw = _set_weights(sets, bands, pixel_effective_count, band_weight)
         ll = pixel_loglik(rho, theta, sets[0] if len(sets) == 1 else np.concatenate(sets),
                           pixel_sigma, pixel_outlier_sigmas, pixel_weight, _buffers, pw, cos_sin)
     ll = np.where(valid & np.isfinite(ll), ll, INVALID_LOGLIK)
