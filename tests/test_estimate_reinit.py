@@ -1,6 +1,6 @@
 """graphtrack.estimate.reinit: the innovation gate, the lock's covariance gate, the prior
-guard, the smoother's restart, the window challenge and the candidate test's motion
-requirement, on the synthetic world
+guard, the smoother's restart and refused updates, the window challenge and the
+candidate test's motion requirement, on the synthetic world
 (tests/robust_world.py).
 
 Oracles: the lock gate against the quadratic form computed by hand; the gate's
@@ -87,13 +87,58 @@ def test_an_occluder_frame_on_a_good_lock_is_predicted_through(name):
             poses.append(e.E)
             flags.append(e.extra["outlier"])
         moved[gate] = np.linalg.norm(matrix_to_bw(poses[-1] @ invert(lock))[:3])
-        contained = getattr(est, "contained", 0)   # the smoother's estimates outside the prior's region
+        # the smoother's estimates outside the prior's region, and its refused updates
+        contained = getattr(est, "contained", 0) + getattr(est, "refused", 0)
         if gate:
             assert policy.rejections >= 15 and sum(flags) == policy.rejections + contained   # trajectory.csv's
         else:
             assert policy.rejections == 0 and sum(flags) == contained
     assert moved[True] < 1.5e-3, moved
     assert moved[False] > 2 * moved[True], moved
+
+
+class _Overshoot:
+    """A gtsam fixed-lag smoother whose newest estimate is moved by ``offset`` (left (b, w))
+    while ``armed``: what an undamped Gauss-Newton step that overshoots returns."""
+
+    def __init__(self, inner, offset):
+        self.inner, self.offset, self.armed = inner, np.asarray(offset, float), False
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def calculateEstimatePose3(self, key):
+        import gtsam
+
+        pose = self.inner.calculateEstimatePose3(key)
+        return gtsam.Pose3(bw_to_matrix(self.offset) @ pose.matrix()) if self.armed else pose
+
+
+@pytest.mark.parametrize("refuse", [True, False])
+def test_a_smoother_update_that_explains_its_frame_worse_is_refused(refuse):
+    """An update 3 mm off the pose before it (an overshooting step, injected) explains its
+    clean frame far worse than the pose before did. It is not reported: the pose before
+    it is, flagged an outlier, and the window restarts from there, so the next frames
+    track the truth again. With the refusal off the overshoot is reported."""
+    world = make_world(3, 3.0, 1.5)
+    est = _lock(world, **({} if refuse else {"refuse_misfit_rise": None}))
+    assert est.refused == 0                  # no refusal on 15 clean frames
+    est.smoother = _Overshoot(est.smoother, [0.003, 0.0, 0.0, 0.0, 0.0, 0.0])
+    est.smoother.armed = True
+    before = est.last.matrix()
+    q, fr = _frame(world, 15)
+    e = est.step(fr, _obs(world, q, world.E_true, 15))
+    moved = np.linalg.norm(matrix_to_bw(e.E @ invert(before))[:3])
+    if not refuse:
+        assert moved > 2.5e-3 and e.extra["outlier"] == 0.0
+        return
+    assert est.refused == 1 and e.extra["outlier"] == 1.0
+    np.testing.assert_allclose(e.E, before, atol=1e-12)
+    assert np.all(np.isfinite(e.std))
+    for t in range(16, 26):
+        q, fr = _frame(world, t)
+        e = est.step(fr, _obs(world, q, world.E_true, t))
+    assert np.linalg.norm(matrix_to_bw(e.E @ invert(world.E_true))[:3]) < 1e-3
 
 
 def test_a_lock_uses_only_frames_it_explains_as_well_as_those_that_formed_it():

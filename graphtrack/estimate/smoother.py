@@ -21,12 +21,16 @@ in one stage with all the frame's factors.
 A re-initialisation by that policy restarts the window: the frame is started up
 as the first one. An outlier frame of its innovation gate adds only the motion factor.
 Containment: an estimate outside the hand-eye prior's region (the policy's prior
-gate; the lumped error never leaves it) is not reported. The frame's detections
-drove it where E is not (an occluder's edges, through the start-up LM or iSAM2's
-undamped Gauss-Newton steps): the window is dropped, the pose before the frame is
-reported (its covariance grown by one motion step; the prior's centre and spread
-if that pose was outside too), the frame counts as an outlier frame, and the policy
-starts up afresh on the next informative frame (docs/decisions/contained-estimate.md).
+gate; the lumped error never leaves it) is not reported: the window is dropped, the
+pose before the frame is reported (covariance + one motion step; the prior's if that
+pose was outside too), the frame counts as an outlier frame, and the policy starts
+up afresh (docs/decisions/contained-estimate.md). Refusal: nor is an update whose
+pose explains its frame worse than the pose before it (the policy's misfit,
+:func:`graphtrack.estimate.divergence.misfit`, higher by more than
+``refuse_misfit_rise``; None: off): robust factors kept edges that are not the
+shaft's, or a Gauss-Newton step overshot. The pose before is reported, the frame
+is an outlier frame, and the window restarts with a prior at that pose and
+covariance (docs/decisions/refused-update.md). Both need the policy (``search``).
 The policy's window challenge (``search_window`` frames; 0: off) re-searches on
 several frames 8 and 16 frames after each start (docs/decisions/window-challenge.md).
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
@@ -52,13 +56,17 @@ from graphtrack.estimate.options import (LAG_S, MOTION_SIGMA_B, MOTION_SIGMA_W, 
                                          SEARCH, SMOOTHER)
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
+from graphtrack.estimate.divergence import misfit
 from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.robot.features import base_features
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussian_bw,
-                                       key, left_from_right_cov, split_options)
+                                       key, left_from_right_cov, right_from_left_cov, split_options)
 from graphtrack.estimate.stereo import stereo_factor_groups
 from factors.edge_bias import BIAS_DIM, bias_key, bias_prior_factor, transition
+
+#: misfit rise (a fraction of the frame's evidence, 0..1) beyond which an update is refused
+REFUSE_MISFIT_RISE = 0.2
 
 
 class FixedLagSmootherEstimator:
@@ -93,7 +101,8 @@ class FixedLagSmootherEstimator:
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
                  start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
                  search_std_w: float = 0.05, reinit_gap: int = 30, search_window: int = 6,
-                 marker_gate_follows_covariance: bool = False, **options):
+                 marker_gate_follows_covariance: bool = False,
+                 refuse_misfit_rise: float | None = REFUSE_MISFIT_RISE, **options):
         self.gtsam = gtsam
         self.ctx = ctx
         self.lag = float(lag)
@@ -138,6 +147,9 @@ class FixedLagSmootherEstimator:
         self.restarts = 0             # re-initialisations (window restarted)
         self.prior_cov = np.diag(np.square([prior_sigma_b] * 3 + [prior_sigma_w] * 3))
         self.contained = 0            # estimates outside the prior's region not reported (module doc)
+        self.refuse_rise = None if refuse_misfit_rise is None else float(refuse_misfit_rise)
+        self.refused = 0              # updates refused (module doc)
+        self.window_prior = None      # after a refusal: the restarted window's prior noise at self.last
 
     # -- helpers ---------------------------------------------------------------------
     def _new_smoother(self):
@@ -167,20 +179,55 @@ class FixedLagSmootherEstimator:
         self.smoother = self._new_smoother()
         self.prev_key = self.bias_stamp = self.start_stamp = self.last_cov = None
         self.settled = self.started = False
+        self.window_prior = None
         self.restarts += 1
 
     def _contain(self, before, before_cov):
         """(pose, cov) reported instead of an estimate outside the prior's region: the pose
         before this frame, cov + one motion step (the prior's centre and covariance if
         that pose was outside too); the window is dropped and the policy starts over."""
-        self._restart()
         self.reinit.start_over()
         self.contained += 1
         if self.reinit.outside_pose(before.matrix()):
             before, before_cov = self.gtsam.Pose3(self.E0), None
-        cov = self.prior_cov if before_cov is None else before_cov + self.motion_cov
+        return self._fall_back(before, before_cov)
+
+    def _refuse(self, before, before_cov):
+        """(pose, cov) reported instead of a refused update (module doc): the pose before
+        this frame, cov + one motion step; the window restarts at that pose with that
+        covariance as its prior (without a covariance: starts up from that pose)."""
+        self.refused += 1
+        pose, cov = self._fall_back(before, before_cov)
+        if before_cov is not None:
+            self.window_prior, self.started = self.gtsam.noiseModel.Gaussian.Covariance(
+                right_from_left_cov(pose.matrix(), cov)), True
+        return pose, cov
+
+    def _fall_back(self, before, before_cov):
+        """(before, cov + one motion step; the prior's without one) for this frame; window dropped."""
+        self._restart()
         self.last = before
-        return before, cov
+        return before, self.prior_cov if before_cov is None else before_cov + self.motion_cov
+
+    def _worse_than_before(self, frame: Frame, observation, pose, before) -> bool:
+        """The policy's misfit (its floored likelihood) of this frame at ``pose`` exceeds
+        the misfit at ``before`` by more than ``refuse_rise`` (module doc)."""
+        x, score = self.reinit._x, self.reinit.scorer.with_floor
+        m_new = misfit(*score(frame.q, observation, x(pose.matrix())))
+        m_old = misfit(*score(frame.q, observation, x(before.matrix())))
+        return bool(m_new > m_old + self.refuse_rise)
+
+    def _checked(self, frame: Frame, observation, pose, cov, before, before_cov, judged: bool):
+        """(pose, cov, outlier) reported for this frame: contained, refused (``judged``: its shaft
+        factors used, no re-initialisation) or as computed (module doc)."""
+        if self.reinit is None:
+            return pose, cov, False
+        if self.reinit.outside_pose(pose.matrix()):
+            return (*self._contain(before, before_cov), True)
+        if judged and self.refuse_rise is not None and self.reinit.count \
+                and self._worse_than_before(frame, observation, pose, before):
+            return (*self._refuse(before, before_cov), True)
+        return pose, cov, self.reinit.rejected
 
     def _stamp(self, frame: Frame) -> float:
         self.last_stamp = monotone_stamp(frame.stamp, self.last_stamp, self.fps)
@@ -306,7 +353,10 @@ class FixedLagSmootherEstimator:
                     shaft, markers, x = self._factors(frame, observation, right, t)
         stamp = self._open_bias_block(k, t, graph, values, stamps)
         if self.prev_key is None:     # the first frame of the window: the hand-eye prior
-            graph.add(gtsam.PriorFactorPose3(x, gtsam.Pose3(self.E0), self.prior_noise))
+            prior = (self.last, self.window_prior) if self.window_prior is not None else \
+                (gtsam.Pose3(self.E0), self.prior_noise)    # (after a refusal: the pose before it)
+            graph.add(gtsam.PriorFactorPose3(x, *prior))
+            self.window_prior = None
         else:
             graph.add(gtsam.BetweenFactorPose3(self.prev_key, x, gtsam.Pose3(), self.motion_noise))
         self.prev_key = x
@@ -334,10 +384,8 @@ class FixedLagSmootherEstimator:
                 pose = self.smoother.calculateEstimatePose3(x)
         self.last = pose
         cov = self._marginal(x, pose) if self.covariance else None
-        outlier = self.reinit is not None and self.reinit.rejected
-        if self.reinit is not None and self.reinit.outside_pose(pose.matrix()):
-            pose, cov = self._contain(before, before_cov)
-            outlier = True
+        pose, cov, outlier = self._checked(frame, observation, pose, cov, before, before_cov,
+                                           found is None and bool(shaft))
         self.last_cov = cov
         ms = (time.perf_counter() - t_start) * 1e3
         self.timings_ms.append(ms)
