@@ -172,6 +172,7 @@ class SearchInit:
         self.lock_run = 0            # consecutive frames used and explained (misfit <= lock_threshold)
         self.lock_frames = int(lock_frames)
         self.rejected = False        # this frame is an outlier frame (module doc): predict through it
+        self.misfit = float("nan")   # this frame's misfit at the estimate it was given (nan: not scored)
         self.rejections = 0          # outlier frames so far
         self.guarded = 0             # prior-guard re-initialisations so far
         self.unused = 0              # frames since the estimator last used a frame
@@ -274,7 +275,7 @@ class SearchInit:
                 cov: np.ndarray | None = None) -> np.ndarray | None:
         """A new initial E (4x4) or None (module doc); ``cov``: the current estimate's left
         (b, w) covariance (the lock's covariance gate; None: no gate)."""
-        self.rejected = False
+        self.rejected, self.misfit = False, float("nan")
         self.unused += 1
         if not informative:
             if self.since is not None:
@@ -289,7 +290,7 @@ class SearchInit:
             self.guarded += 1
             return self._adopt(self._search(q, observation, np.zeros(6)))
         ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
-        m_cur = misfit(ll_cur, floor)
+        m_cur = self.misfit = misfit(ll_cur, floor)
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
         after_gap = self.since >= self.gap and not m_cur <= self.threshold \
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing

@@ -213,9 +213,10 @@ class FixedLagSmootherEstimator:
         """The policy's misfit (its floored likelihood) of this frame at ``pose`` exceeds
         the misfit at ``before`` by more than ``refuse_rise`` (module doc)."""
         x, score = self.reinit._x, self.reinit.scorer.with_floor
-        m_new = misfit(*score(frame.q, observation, x(pose.matrix())))
-        m_old = misfit(*score(frame.q, observation, x(before.matrix())))
-        return bool(m_new > m_old + self.refuse_rise)
+        m_old = self.reinit.misfit       # the policy scored this frame at ``before``
+        if not np.isfinite(m_old):
+            m_old = misfit(*score(frame.q, observation, x(before.matrix())))
+        return bool(misfit(*score(frame.q, observation, x(pose.matrix()))) > m_old + self.refuse_rise)
 
     def _checked(self, frame: Frame, observation, pose, cov, before, before_cov, judged: bool):
         """(pose, cov, outlier) reported for this frame: contained, refused (``judged``: its shaft
