@@ -14,8 +14,9 @@ with its std: the tracking pipeline gates the detector with the provisional
 estimate's std, so the batch refines exactly the detections the online
 smoother saw; without the std every frame had the widest gate). A frame the
 online smoother flagged an outlier frame (its ``outlier`` column: a good lock
-did not explain it, an occluder's edges near the shaft, or its detections drove
-the estimate out of the hand-eye prior's region) gets no detection factors here
+did not explain it, an occluder's edges near the shaft; its detections drove
+the estimate out of the hand-eye prior's region; or its update there explained
+the frame worse than the pose before it) gets no detection factors here
 either, only its motion (and on frame 0 prior) factors, and 1 in the
 ``outlier_online`` column: over the whole recording such frames otherwise pull
 every E_t towards the occluder (docs/decisions/batch-skips-outlier-frames.md). ``finish``

@@ -25,12 +25,13 @@ gate; the lumped error never leaves it) is not reported: the window is dropped, 
 pose before the frame is reported (covariance + one motion step; the prior's if that
 pose was outside too), the frame counts as an outlier frame, and the policy starts
 up afresh (docs/decisions/contained-estimate.md). Refusal: nor is an update whose
-pose explains its frame worse than the pose before it (the policy's misfit,
-:func:`graphtrack.estimate.divergence.misfit`, higher by more than
-``refuse_misfit_rise``; None: off): robust factors kept edges that are not the
-shaft's, or a Gauss-Newton step overshot. The pose before is reported, the frame
-is an outlier frame, and the window restarts with a prior at that pose and
-covariance (docs/decisions/refused-update.md). Both need the policy (``search``).
+pose explains its frame worse than the pose before it (the policy's misfit of the
+left image, :func:`graphtrack.estimate.divergence.misfit`, higher by more than
+``refuse_misfit_rise``; None: off; not judged without a covariance or on a degenerate
+misfit): robust factors kept edges that are not the shaft's, or a Gauss-Newton step
+overshot. The pose before is reported, the frame is an outlier frame, and the window
+restarts with a prior at that pose and covariance (docs/decisions/refused-update.md).
+Both need the policy (``search``).
 The policy's window challenge (``search_window`` frames; 0: off) re-searches on
 several frames 8 and 16 frames after each start (docs/decisions/window-challenge.md).
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
@@ -144,7 +145,7 @@ class FixedLagSmootherEstimator:
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
                                      markers, motion_cov=self.motion_cov, window=search_window)
             self.start_up_wait = 0    # the search associates markers per hypothesis
-        self.restarts = 0             # re-initialisations (window restarted)
+        self.restarts = 0             # windows dropped (re-initialisation, containment, refusal)
         self.prior_cov = np.diag(np.square([prior_sigma_b] * 3 + [prior_sigma_w] * 3))
         self.contained = 0            # estimates outside the prior's region not reported (module doc)
         self.refuse_rise = None if refuse_misfit_rise is None else float(refuse_misfit_rise)
@@ -174,8 +175,8 @@ class FixedLagSmootherEstimator:
         return gtsam.IncrementalFixedLagSmoother(self.lag, p)
 
     def _restart(self) -> None:
-        """Re-initialisation: drop the window and start up afresh (the hand-eye prior,
-        the search's mode as initial value), as at the first frame."""
+        """Drop the window: the next frame opens a new one (a re-initialisation: started up
+        as the first frame; a refusal: at its window prior)."""
         self.smoother = self._new_smoother()
         self.prev_key = self.bias_stamp = self.start_stamp = self.last_cov = None
         self.settled = self.started = False
@@ -194,13 +195,11 @@ class FixedLagSmootherEstimator:
 
     def _refuse(self, before, before_cov):
         """(pose, cov) reported instead of a refused update (module doc): the pose before
-        this frame, cov + one motion step; the window restarts at that pose with that
-        covariance as its prior (without a covariance: starts up from that pose)."""
+        this frame, cov + Q; the next frame's window prior: that pose, cov + 2 Q."""
         self.refused += 1
         pose, cov = self._fall_back(before, before_cov)
-        if before_cov is not None:
-            self.window_prior, self.started = self.gtsam.noiseModel.Gaussian.Covariance(
-                right_from_left_cov(pose.matrix(), cov)), True
+        self.window_prior, self.started = self.gtsam.noiseModel.Gaussian.Covariance(
+            right_from_left_cov(pose.matrix(), cov + self.motion_cov)), True
         return pose, cov
 
     def _fall_back(self, before, before_cov):
@@ -212,20 +211,18 @@ class FixedLagSmootherEstimator:
     def _worse_than_before(self, frame: Frame, observation, pose, before) -> bool:
         """The policy's misfit (its floored likelihood) of this frame at ``pose`` exceeds
         the misfit at ``before`` by more than ``refuse_rise`` (module doc)."""
-        x, score = self.reinit._x, self.reinit.scorer.with_floor
-        m_old = self.reinit.misfit       # the policy scored this frame at ``before``
-        if not np.isfinite(m_old):
-            m_old = misfit(*score(frame.q, observation, x(before.matrix())))
-        return bool(misfit(*score(frame.q, observation, x(pose.matrix()))) > m_old + self.refuse_rise)
+        m_old = self.reinit.misfit       # the policy scored this frame at ``before`` (nan: degenerate)
+        x = self.reinit._x(pose.matrix())
+        return bool(misfit(*self.reinit.scorer.with_floor(frame.q, observation, x)) > m_old + self.refuse_rise)
 
     def _checked(self, frame: Frame, observation, pose, cov, before, before_cov, judged: bool):
         """(pose, cov, outlier) reported for this frame: contained, refused (``judged``: its shaft
-        factors used, no re-initialisation) or as computed (module doc)."""
+        factors used, no re-initialisation, a covariance) or as computed (module doc)."""
         if self.reinit is None:
             return pose, cov, False
         if self.reinit.outside_pose(pose.matrix()):
             return (*self._contain(before, before_cov), True)
-        if judged and self.refuse_rise is not None and self.reinit.count \
+        if judged and self.refuse_rise is not None and before_cov is not None \
                 and self._worse_than_before(frame, observation, pose, before):
             return (*self._refuse(before, before_cov), True)
         return pose, cov, self.reinit.rejected
@@ -298,7 +295,7 @@ class FixedLagSmootherEstimator:
 
     def _factors(self, frame: Frame, observation, right, t: float):
         """This frame's (shaft factors, marker factors, pose key); the key is y_t once settled."""
-        if self.start_stamp is None and self.started:   # start_up=False: from the first frame
+        if self.start_stamp is None and self.started:   # start_up=False, or after a refusal
             self.start_stamp = t
         if not self.settled and self.start_stamp is not None and t - self.start_stamp >= self.settle:
             self.settled = True
