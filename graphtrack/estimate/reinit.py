@@ -315,6 +315,10 @@ class SearchInit:
         self.candidate = _Candidate(res)
         return self._test(q, observation, ll_cur, m_cur)
 
+    def misfit_at(self, q, observation, E: np.ndarray) -> float:
+        """This frame's misfit (:func:`misfit`) at E (4x4)."""
+        return misfit(*self.scorer.with_floor(q, observation, self._x(E)))
+
     @property
     def threshold(self) -> float:
         """The misfit above which a frame is not explained (the monitor's threshold)."""

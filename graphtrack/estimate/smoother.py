@@ -57,7 +57,6 @@ from graphtrack.estimate.options import (LAG_S, MOTION_SIGMA_B, MOTION_SIGMA_W, 
                                          SEARCH, SMOOTHER)
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
-from graphtrack.estimate.divergence import misfit
 from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.robot.features import base_features
@@ -80,8 +79,8 @@ class FixedLagSmootherEstimator:
     motion_sigma_b/_w (per frame), iterations (extra iSAM2 passes per frame
     while the newest state still moves more than ``converge_tol``),
     relinearize_threshold, settled_relinearize_threshold and settle (s; see
-    the module doc), fps (stamps fallback), covariance (compute the
-    marginal each frame), plus :class:`graphtrack.estimate.graph.FactorOptions`
+    the module doc), fps (stamps fallback), covariance (compute the marginal each
+    frame), refuse_misfit_rise (module doc), plus :class:`graphtrack.estimate.graph.FactorOptions`
     (pixel_sigma, line_sigma_rho, line_sigma_theta, marker_sigma, marker_gate,
     robust, robust_k, max_pixels).
     """
@@ -208,12 +207,12 @@ class FixedLagSmootherEstimator:
         self.last = before
         return before, self.prior_cov if before_cov is None else before_cov + self.motion_cov
 
-    def _worse_than_before(self, frame: Frame, observation, pose, before) -> bool:
-        """The policy's misfit (its floored likelihood) of this frame at ``pose`` exceeds
-        the misfit at ``before`` by more than ``refuse_rise`` (module doc)."""
-        m_old = self.reinit.misfit       # the policy scored this frame at ``before`` (nan: degenerate)
-        x = self.reinit._x(pose.matrix())
-        return bool(misfit(*self.reinit.scorer.with_floor(frame.q, observation, x)) > m_old + self.refuse_rise)
+    def _worse_than_before(self, frame: Frame, observation, pose) -> bool:
+        """The policy's misfit (its floored likelihood) of this frame at ``pose`` exceeds the
+        misfit at the pose before, which the policy scored (``reinit.misfit``), by more than
+        ``refuse_rise`` (module doc; nan: degenerate, not refused)."""
+        m_new = self.reinit.misfit_at(frame.q, observation, pose.matrix())
+        return bool(m_new > self.reinit.misfit + self.refuse_rise)
 
     def _checked(self, frame: Frame, observation, pose, cov, before, before_cov, judged: bool):
         """(pose, cov, outlier) reported for this frame: contained, refused (``judged``: its shaft
@@ -223,7 +222,7 @@ class FixedLagSmootherEstimator:
         if self.reinit.outside_pose(pose.matrix()):
             return (*self._contain(before, before_cov), True)
         if judged and self.refuse_rise is not None and before_cov is not None \
-                and self._worse_than_before(frame, observation, pose, before):
+                and self._worse_than_before(frame, observation, pose):
             return (*self._refuse(before, before_cov), True)
         return pose, cov, self.reinit.rejected
 
