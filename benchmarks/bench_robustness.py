@@ -55,6 +55,7 @@ RECORDINGS = 200
 FRAMES = (90, 150)
 ESTIMATORS = ["kinematics", "pf", "smoother", "batch"]
 ONLINE = ("pf", "smoother")
+OBSERVATION = "line-intensities"
 LIMIT = 15               # frames to converge / re-acquire
 WORSE_TOL_PX = 1.0
 
@@ -98,11 +99,17 @@ def disturbances(recording: Path) -> list[tuple[int, int]]:
     return out
 
 
-def tip_errors(cell_dir: Path) -> np.ndarray | None:
+def cell_dir(runs: Path, estimator: str) -> Path:
+    """The study's folder of one estimator's cell under a recording's ``runs`` folder
+    (its ``Cell.key``: the estimator, with the observation model unless kinematics)."""
+    return runs / (estimator if estimator == "kinematics" else f"{estimator}-{OBSERVATION}")
+
+
+def tip_errors(cell: Path) -> np.ndarray | None:
     """Per-frame 2-D tip error (px) against the exact tip, by frame index; None if the cell failed."""
-    if not (cell_dir / "done.json").is_file():
+    if not (cell / "done.json").is_file():
         return None
-    return tip_errors_csv(cell_dir / "truth_errors.csv")
+    return tip_errors_csv(cell / "truth_errors.csv")
 
 
 def tip_errors_csv(p: Path) -> np.ndarray | None:
@@ -124,10 +131,10 @@ def figures(study: Path, paths: list[str]) -> dict[str, list[dict]]:
     out: dict[str, list[dict]] = {e: [] for e in ESTIMATORS}
     for path in paths:
         runs = study / "runs" / Path(path).name
-        base = tip_errors(runs / "kinematics")
+        base = tip_errors(cell_dir(runs, "kinematics"))
         dist = disturbances(Path(path))
         for est in out:
-            err = base if est == "kinematics" else tip_errors(runs / f"{est}-line-intensities")
+            err = base if est == "kinematics" else tip_errors(cell_dir(runs, est))
             if err is None or base is None:
                 out[est].append({"failed": True})
                 continue
@@ -177,9 +184,9 @@ def _causal_cell(args) -> float | None:
     runs = Path(runs)
     out = runs / f"batch-causal{LIMIT}"
     csv = out / "truth_errors.csv"
-    newer = [runs / f"{e}-line-intensities" / "done.json" for e in ("smoother", "batch")]
+    newer = [cell_dir(runs, e) / "done.json" for e in ("smoother", "batch")]
     if not csv.is_file() or any(d.is_file() and d.stat().st_mtime > csv.stat().st_mtime for d in newer):
-        cell = Cell(runs.name, path, "batch", "line-intensities", str(out), options)
+        cell = Cell(runs.name, path, "batch", OBSERVATION, str(out), options)
         try:
             track(path, out, cell.track_options(), progress=False, quiet=True, max_frames=LIMIT + 1)
         except Exception as exc:  # noqa: BLE001 (a failed cell is counted, as the study counts its own)
@@ -208,7 +215,7 @@ def causal_bound(study: Path, paths: list[str], options, workers: int) -> dict:
     res = {"recordings": len(ok), "failed": len(tips) - len(ok),
            "batch": float(np.mean([t < CONVERGED_PX for _, t in ok])) if ok else float("nan")}
     for est in ONLINE:
-        at = [tip_errors(r / f"{est}-line-intensities") for r, _ in ok]
+        at = [tip_errors(cell_dir(r, est)) for r, _ in ok]
         res[est] = float(np.mean([e is not None and len(e) > LIMIT and e[LIMIT] < CONVERGED_PX for e in at])) \
             if ok else float("nan")
     return res
@@ -272,7 +279,7 @@ def run(results: dict, n: int = RECORDINGS, workers: int | None = None, ray: str
         os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
     paths = recordings(n, workers, seed0)
     study = DATA / f"study-{seed0}-{n}"
-    options = StudyOptions(estimators=ESTIMATORS, observations=["line-intensities"])
+    options = StudyOptions(estimators=ESTIMATORS, observations=[OBSERVATION])
     run_study(paths, study, options, workers=workers, ray_address=ray, quiet=False)
     per_est = figures(study, paths)
     res = results.setdefault("robustness", {})

@@ -197,8 +197,9 @@ class FixedLagSmootherEstimator:
         this frame, cov + Q; the next frame's window prior: that pose, cov + 2 Q."""
         self.refused += 1
         pose, cov = self._fall_back(before, before_cov)
-        self.window_prior, self.started = self.gtsam.noiseModel.Gaussian.Covariance(
-            right_from_left_cov(pose.matrix(), cov + self.motion_cov)), True
+        C = right_from_left_cov(pose.matrix(), cov + self.motion_cov)
+        self.window_prior = self.gtsam.noiseModel.Gaussian.Covariance(C)
+        self.started = True           # the window opens at its prior, not by a start-up LM
         return pose, cov
 
     def _fall_back(self, before, before_cov):
