@@ -58,13 +58,26 @@ class PointFeature:
 
 @dataclass(frozen=True)
 class ShaftFeature:
-    """A cylinder fixed to a link: point on the centre line, direction, radius (m)."""
+    """A cylinder fixed to a link: point on the centre line, direction, radius (m).
+
+    ``end`` (m, optional robot.json key): where the dark shaft ends on the wrist
+    side, as the coordinate along ``direction`` (unit) from ``position``; None: not
+    known, and the shaft's end is not observed (:mod:`graphtrack.detect.shaft_end`).
+    """
 
     name: str
     link: int
     position: tuple[float, float, float]
     direction: tuple[float, float, float]
     radius: float
+    end: float | None = None
+
+    def end_centre(self) -> np.ndarray | None:
+        """The centre of the shaft's distal end in the link frame (3,), m, or None."""
+        if self.end is None:
+            return None
+        d = np.asarray(self.direction, float)
+        return np.asarray(self.position, float) + self.end * d / np.linalg.norm(d)
 
 
 @dataclass(frozen=True)
@@ -110,7 +123,8 @@ class RobotDescription:
                                 **({"radius": p.radius} if p.radius > 0 else {})}
                                for p in self.point_features],
             "shaft_features": [{"name": s.name, "link": s.link, "position": list(s.position),
-                                "direction": list(s.direction), "radius": s.radius}
+                                "direction": list(s.direction), "radius": s.radius,
+                                **({"end": s.end} if s.end is not None else {})}
                                for s in self.shaft_features],
             "skeleton_structure": [{"link1": s.link1, "position1": list(s.position1),
                                     "link2": s.link2, "position2": list(s.position2)}
@@ -236,7 +250,8 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
         d.where = f"shaft_features[{i}]: "
         s = ShaftFeature(d.get(o, "name", str, default=f"shaft_{i}", required=False),
                          d.get(o, "link", int, bound=MAX_LINK), d.get(o, "position", "vec3", bound=L),
-                         d.get(o, "direction", "vec3", bound=L), d.get(o, "radius", bound=L))
+                         d.get(o, "direction", "vec3", bound=L), d.get(o, "radius", bound=L),
+                         d.get(o, "end", default=None, required=False, bound=L))
         _check_link(d, s.link, n_links, "link")
         if not np.linalg.norm(s.direction) > 1e-9 or not 0 < s.radius <= 0.1:
             d.fail("direction/radius", "direction must be non-zero and radius in (0, 0.1] m")

@@ -49,7 +49,7 @@ def psm_large_needle_driver() -> RobotDescription:
     markers = [PointFeature(f"marker_{i}", 4, (SHAFT_RADIUS * np.cos(a), SHAFT_RADIUS * np.sin(a), z),
                             MARKER_RADIUS)
                for i, (a, z) in enumerate(MARKER_LAYOUT)]
-    shaft = ShaftFeature("shaft", 4, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), SHAFT_RADIUS)
+    shaft = ShaftFeature("shaft", 4, (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), SHAFT_RADIUS, SHAFT_END)
     skeleton = [
         SkeletonSegment(4, (0.0, 0.0, -0.04), 4, (0.0, 0.0, SHAFT_END)),
         SkeletonSegment(4, (0.0, 0.0, SHAFT_END), 5, (0.0, 0.0, 0.0)),
