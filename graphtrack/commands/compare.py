@@ -31,7 +31,8 @@ def study_options_from_args(args) -> StudyOptions:
     if args.repeats < 1:
         raise InputError("--repeats must be at least 1")
     detection = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha,
-                                 beta=args.beta, markers=not args.no_markers).check()
+                                 beta=args.beta, markers=not args.no_markers,
+                                 shaft_end=not args.no_shaft_end).check()
     return StudyOptions(estimators=_list(args.estimators, tuple(ESTIMATORS), "estimators"),
                         observations=_list(args.observations, OBSERVATION_MODELS, "observations"),
                         detection=detection, estimation=estimator_options_from_args(args), seed=args.seed,
@@ -74,6 +75,8 @@ def add_parser(sub):
                         "(default: local processes)")
     add_detection_arguments(p)
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
+    p.add_argument("--no-shaft-end", action="store_true",
+                   help="do not observe where the shaft ends (robot.json's shaft_features[0].end)")
     add_estimator_arguments(p)
     p.add_argument("--repeats", type=int, default=StudyOptions.repeats, metavar="N",
                    help="run each seed-dependent cell (the particle filter; the RANSAC -polar models) "

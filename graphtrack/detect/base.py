@@ -95,6 +95,9 @@ class Observation:
         False), so it may sit a few px off the silhouette; empty: none. The
         particle filter and the smoother's and batch's pixel factors weigh such a
         set's pixels by ``band_weight`` (docs/decisions/band-weight.md).
+    shaft_end: (k, 4), k in {0, 1}: the shaft's detected distal end (x, y) and the
+        unit image direction (dx, dy) towards the wrist (:mod:`graphtrack.detect.shaft_end`),
+        full-size undistorted px; empty when not found or not asked for.
     """
 
     model: str
@@ -103,6 +106,7 @@ class Observation:
     markers: np.ndarray = field(default_factory=lambda: _empty(2))
     edge_ids: np.ndarray = field(default_factory=_empty_ids)
     bands: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    shaft_end: np.ndarray = field(default_factory=lambda: _empty(4))
 
     @property
     def pixel_bands(self) -> np.ndarray:

@@ -159,7 +159,14 @@ def scale_observation(obs: Observation, s: float) -> Observation:
     return Observation(model=obs.model, lines=_scale_lines(obs.lines, s),
                        pixels=[_scale_points(p, s) for p in obs.pixels],
                        markers=_scale_points(np.asarray(obs.markers, float).reshape(-1, 2), s),
-                       edge_ids=np.asarray(obs.edge_ids).copy(), bands=np.asarray(obs.bands, bool).copy())
+                       edge_ids=np.asarray(obs.edge_ids).copy(), bands=np.asarray(obs.bands, bool).copy(),
+                       shaft_end=_scale_end(obs.shaft_end, s))
+
+
+def _scale_end(end: np.ndarray, s: float) -> np.ndarray:
+    end = np.asarray(end, float).reshape(-1, 4).copy()
+    end[:, :2] *= s
+    return end
 
 
 def scale_detection(det: Detection, s: float) -> Detection:

@@ -19,7 +19,8 @@ class DetectionOptions:
     weights: its weights file (None: the shipped ones); alpha (px) / beta: the
     pixel sets' radius and heatmap threshold; markers: use painted-marker
     detections; scale: detect on the undistorted image scaled by this factor
-    (None: at most MAX_DETECT_WIDTH px wide)."""
+    (None: at most MAX_DETECT_WIDTH px wide); shaft_end: find the shaft's distal end
+    where robot.json gives it (:mod:`graphtrack.detect.shaft_end`)."""
 
     detector: str = DETECTOR
     weights: str | None = None
@@ -27,6 +28,7 @@ class DetectionOptions:
     beta: float = BETA
     markers: bool = True
     scale: float | None = None
+    shaft_end: bool = True
 
     def check(self) -> DetectionOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""

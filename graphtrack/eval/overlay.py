@@ -6,7 +6,8 @@ Per frame (BGR colours):
 - yellow: the detected shaft edges (lines through the whole image) and, thicker,
   the associated shaft segments;
 - cyan dots (2 px radius): the observation's pixel sets (E_e / E_l) of the pixel models;
-- magenta circles: detected marker centroids;
+- magenta circles: detected marker centroids; magenta tick across the shaft: its
+  detected end (:mod:`graphtrack.detect.shaft_end`);
 - red dot: the estimated tool tip; white cross: the labelled tip (labels.csv).
 
 Detections live in UNDISTORTED pixels; everything is mapped to raw pixels with
@@ -116,6 +117,10 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
                 for u, v in _pts(cam.distort_pixels(pix)) // 16:
                     if 0 <= u < w and 0 <= v < h:
                         cv2.circle(img, (int(u), int(v)), 2, CYAN, -1)
+    if observation is not None:
+        for x, y, dx, dy in np.asarray(observation.shaft_end, float).reshape(-1, 4):   # a tick across the shaft
+            n = 12.0 * np.array([-dy, dx])
+            draw_polyline_raw(img, cam, sample_segment(np.array([x, y]) - n, np.array([x, y]) + n, 8), MAGENTA, 2)
     markers = None
     if detection is not None and len(detection.markers):
         markers = detection.markers

@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from graphtrack.detect import make_detector, observe
+from graphtrack.detect import make_detector, observe, shaft_end
 from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.estimate import estimator_class, make_estimator
 from graphtrack.estimate.options import EstimatorOptions
 from graphtrack.io.context import TrackingContext
+from graphtrack.geometry.shaft_end import front_point
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, shaft_lines
 
@@ -48,6 +49,8 @@ class TrackOptions:
 
 #: the widest association gate (px at full size), see Pipeline.gate
 MAX_GATE_PX = 150.0
+#: the narrowest shaft-end gate (px at full size), see Pipeline.end_gate
+END_GATE_MIN_PX = 20.0
 
 
 def auto_detect_scale(width: int, max_width: int = MAX_DETECT_WIDTH) -> float:
@@ -97,6 +100,7 @@ class Pipeline:
         self.last_E = ctx.handeye.copy()
         self.last_std = None          # nothing known before the first estimate: widest gate
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
+        self._end_gate = float('inf')  # px, this frame's end_gate
         self.rng = np.random.default_rng(options.seed)
 
     def predicted_lines(self, frame: Frame, right: bool = False) -> np.ndarray | None:
@@ -149,7 +153,7 @@ class Pipeline:
             return None
         return dataclasses.replace(base, max_offset=float(widest))
 
-    def _image(self, image: np.ndarray, camera, detect_camera, lines, gate, ms: dict):
+    def _image(self, image: np.ndarray, camera, detect_camera, lines, gate, ms: dict, predicted_end=None):
         """Undistort, detect and observe one image; (Detection, Observation) in
         full-size pixels; adds the stages' milliseconds to ``ms``.
 
@@ -175,8 +179,55 @@ class Pipeline:
                                                beta=det.beta, use_markers=det.markers, rng=self.rng)
         observation = observe.scale_observation(observation, 1.0 / self.scale)  # full-size pixels
         detection = observe.scale_detection(detection, 1.0 / self.scale)
+        end = self._end(image, camera, detection, predicted_end)
+        if end is not None:
+            observation.shaft_end = end
         ms["observe"] = ms.get("observe", 0.0) + 1e3 * (time.perf_counter() - t)
         return detection, observation
+
+    def predicted_end(self, frame: Frame, right: bool = False):
+        """(pixel (2,), direction (2,)): where the shaft visibly ends at the last estimate
+        (:func:`graphtrack.geometry.shaft_end.front_point`) and the unit image direction
+        along the shaft towards it (full-size undistorted px; ``right``: in the right
+        image); None when robot.json gives no shaft end or shaft-end detection is off."""
+        shafts = self.ctx.robot.shaft_features
+        if not self.options.detection.shaft_end or not shafts or shafts[0].end is None:
+            return None
+        feats = self._predicted_features(frame)
+        K = self.ctx.camera.K
+        if right:
+            feats, K = feats.transformed(self.ctx.right_T_left), self.ctx.right.K
+        a = feats.shaft_d[0]
+        c = feats.shaft_p0[0] + shafts[0].end * a
+        pts = np.stack([c - 0.01 * a, front_point(c, a, shafts[0].radius)]) @ np.asarray(K, float).T
+        if not np.all(pts[:, 2] > 1e-6):
+            return None
+        uv = pts[:, :2] / pts[:, 2:]
+        d = uv[1] - uv[0]
+        n = np.linalg.norm(d)
+        return (uv[1], d / n) if n > 1e-9 else None
+
+    def end_gate(self, frame: Frame) -> float:
+        """px: how far along the shaft's image a detected end may lie from the predicted
+        one, max(``END_GATE_MIN_PX``, 3 s) with s of :meth:`gate` at full size (inf before
+        the first estimate, or without a covariance)."""
+        std = self.last_std
+        if std is None or not np.all(np.isfinite(std)):
+            return float("inf")
+        z = self._predicted_features(frame).shaft_p0[0, 2]
+        s = self.ctx.camera.K[0, 0] * (np.linalg.norm(std[:3]) / max(z, 1e-3) + np.linalg.norm(std[3:]))
+        return max(END_GATE_MIN_PX, 3.0 * s)
+
+    def _end(self, image, camera, detection, predicted) -> np.ndarray | None:
+        """The shaft end (1, 4) found on ``image`` (:mod:`graphtrack.detect.shaft_end`)
+        within the end gate of the predicted one, or None."""
+        if predicted is None or len(detection.shaft_lines) != 2:
+            return None
+        end = shaft_end.locate(shaft_end.raw_sampler(image, camera), detection.shaft_lines,
+                               detection.shaft_segments, predicted[1])
+        if end is None or abs(end.direction @ (end.point - predicted[0])) > self._end_gate:
+            return None
+        return np.concatenate([end.point, end.direction])[None]
 
     def step(self, frame: Frame):
         ms = {}
@@ -184,11 +235,13 @@ class Pipeline:
         self.right = (None, None)
         if self.needs_images:
             gate = self.gate(frame)
+            self._end_gate = self.end_gate(frame)
             detection, observation = self._image(frame.image, self.ctx.camera, self.detect_camera,
-                                                 self.predicted_lines(frame), gate, ms)
+                                                 self.predicted_lines(frame), gate, ms, self.predicted_end(frame))
             if self.stereo and frame.image_right is not None:
                 self.right = self._image(frame.image_right, self.ctx.right, self.detect_right,
-                                         self.predicted_lines(frame, right=True), gate, ms)
+                                         self.predicted_lines(frame, right=True), gate, ms,
+                                         self.predicted_end(frame, right=True))
             elif self.stereo:
                 self.left_only += 1
         t = time.perf_counter()
