@@ -25,8 +25,9 @@ from factors.limb import LimbPairing
 from factors.line_parameter import line_parameter_factor
 from factors.marker import marker_factor
 from factors.robust import make_kernel
+from factors.shaft_end import shaft_end_factor
 from factors.shaft_pixels import shaft_pixels_factor
-from graphtrack.estimate.observation_models import BAND_WEIGHT, PIXEL_EFFECTIVE_COUNT, set_weight
+from graphtrack.estimate.observation_models import BAND_WEIGHT, END_SIGMA, PIXEL_EFFECTIVE_COUNT, set_weight
 from graphtrack.detect.base import POLAR_MODELS
 from graphtrack.estimate.base import STD_COLUMNS  # the extra trajectory columns (re-exported)
 from graphtrack.geometry.cylinder import ShaftAxis
@@ -96,6 +97,10 @@ class FactorOptions:
     _width_slope (px) and time constant edge_bias_tau (s), one vector per
     edge_bias_every frames. Pixel sets are on it; so are the polar models' lines
     (the smoother's only once settled, ``line_bias`` of :func:`frame_factor_groups`).
+    shaft_end_sigma (px) / shaft_end_robust: the detected shaft end's residual along
+    the shaft's image and its kernel (:mod:`factors.shaft_end`; Cauchy, width 2 sigma:
+    a step that is not the shaft's end is all but ignored, as in the particle filter's
+    floored term).
 
     Why these defaults, with measurements: docs/decisions/pixel-effective-count.md,
     edge-bias-state.md, marker-gate.md, painted-disc-markers.md, band-weight.md.
@@ -121,6 +126,8 @@ class FactorOptions:
     edge_bias_sigma_width_slope: float = 1.5
     edge_bias_tau: float = 2.0
     edge_bias_every: int = 5
+    shaft_end_sigma: float = END_SIGMA
+    shaft_end_robust: str = "huber"
 
     @property
     def kernel(self):
@@ -214,6 +221,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                                         extrinsic)
                 if f is not None:
                     out.append(f)
+        out += _end_factors(x, observation, robot, q, F, K, opts, extrinsic)
     if want_markers and len(F.points):
         mk = np.asarray(observation.markers, float).reshape(-1, 2)
         mk = mk[np.all(np.isfinite(mk), axis=1)]
@@ -223,6 +231,17 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
         if f is not None:
             return out, [f]
     return out, []
+
+
+def _end_factors(x: int, observation, robot, q, F, K, opts: FactorOptions, extrinsic) -> list:
+    """The shaft-end factor of a frame whose observation has a detected end (else none)."""
+    end = np.asarray(observation.shaft_end, float).reshape(-1, 4)
+    sf = robot.shaft_features[0]
+    if len(end) == 0 or sf.end is None:
+        return []
+    centre = F.shaft_p0[0] + sf.end * F.shaft_d[0]
+    return [shaft_end_factor(x, end[0, :2], end[0, 2:], centre, F.shaft_d[0], F.shaft_r[0], K,
+                             opts.shaft_end_sigma, make_kernel(opts.shaft_end_robust), extrinsic)]
 
 
 def split_options(options: dict) -> tuple[FactorOptions, dict]:

@@ -25,6 +25,14 @@ Markers: log P = -sum_k cost(min(d_k, gate)), d_k (px) to the associated project
 marker; cost "laplace" gamma d, "huber" u^2/2 up to u = k then k u - k^2/2 (u = d/s),
 "cauchy" log(1 + u^2); the best injective assignment per particle (all enumerated),
 markers facing away count as unmatched (cost gate).
+Shaft end (``Observation.shaft_end``: the detected end p and the unit direction d
+along the shaft's image): s = d . (pi(P(E)) - p) px, P the end rim's front point
+(:mod:`graphtrack.geometry.shaft_end`),
+
+    log P = max(-s^2 / (2 sigma_e^2), -c_e^2 / 2)
+
+(sigma_e = ``END_SIGMA``, c_e = ``END_OUTLIER_SIGMAS``: a step from dark to bright
+that is not the shaft's end, a crossing flap or instrument, costs at most c_e^2 / 2).
 Degenerate projections (valid False) get ``INVALID_LOGLIK``.
 
 Defaults and their measurements: docs/decisions/pixel-effective-count.md, marker-gate.md,
@@ -64,6 +72,8 @@ MARKER_LOSS = "laplace"
 MARKER_SIGMA = 2.0     # px (huber / cauchy losses)
 MARKER_HUBER_K = 2.0   # Huber threshold in units of MARKER_SIGMA
 MARKER_LOSSES = ("laplace", "huber", "cauchy")
+END_SIGMA = 2.0        # px along the shaft's image; docs/decisions/shaft-end.md
+END_OUTLIER_SIGMAS = 3.0
 
 
 def _finite_rows(a: np.ndarray, width: int) -> np.ndarray:
@@ -201,6 +211,18 @@ def marker_loglik_mn(u: np.ndarray, v: np.ndarray, visible: np.ndarray, detected
         r, c = linear_sum_assignment(dist[:, :, i0])
         total = dist[r, c].sum(axis=0) + gate * (D - len(r))
     return -total
+
+
+def shaft_end_loglik(end_u: np.ndarray | None, end_v: np.ndarray | None, observation,
+                     sigma: float = END_SIGMA, outlier_sigmas: float = END_OUTLIER_SIGMAS) -> np.ndarray | float:
+    """The shaft-end term (module doc) for projected ends (N,) px; 0 without a detected
+    end or a modelled one. A hypothesis whose end is behind the camera (NaN) gets the floor."""
+    end = np.asarray(observation.shaft_end, float).reshape(-1, 4)
+    if end_u is None or len(end) == 0:
+        return 0.0
+    p, d = end[0, :2], end[0, 2:]
+    z = (d[0] * (end_u - p[0]) + d[1] * (end_v - p[1])) / sigma
+    return np.fmax(-0.5 * z * z, -0.5 * outlier_sigmas * outlier_sigmas)
 
 
 def set_weight(m: int, band: bool, effective_count: float, band_weight: float) -> float:

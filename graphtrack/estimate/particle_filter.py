@@ -230,7 +230,7 @@ class ParticleFilter:
                                       self.marker_gamma, self.marker_gate,
                                       estimate_index=int(np.argmax(self.logw)) if n == self.N else 0,
                                       **self.marker_options)
-        return ll
+        return ll + om.shaft_end_loglik(h.end_u, h.end_v, observation)
 
     def step(self, frame: Frame, observation=None, right=None) -> Estimate:
         q = frame.q

@@ -105,7 +105,8 @@ class Scorer:
             ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers, self.marker_gamma,
                                       self.marker_gate, estimate_index=estimate_index,
                                       **self.marker_options)
-        return ll
+        end_sigma = om.END_SIGMA if sigma is None else max(om.END_SIGMA, sigma)
+        return ll + om.shaft_end_loglik(h.end_u, h.end_v, observation, end_sigma)
 
     def __call__(self, q, observation, x: np.ndarray, sigma: float | None = None) -> np.ndarray:
         """Log-likelihood (n,) of one frame (reading q, observation) for hypotheses x (n, 6)."""

@@ -37,7 +37,7 @@ undistorted image):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
@@ -47,6 +47,7 @@ from graphtrack.geometry.camera import Camera
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
 from graphtrack.geometry.painted_marker import disc_centroid
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
+from graphtrack.geometry.shaft_end import front_point
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, marker_discs
@@ -141,7 +142,8 @@ def random_handeye_error(rng: np.random.Generator, b_mm: float, w_deg: float) ->
 class SynthFrame:
     """One frame: joints q (7,), the true E (4x4), and its exact (+ noise) observations:
     pixels (per edge (m_i, 2) px), lines ((2, 2) rho px, theta rad), markers ((N, 2) px);
-    valid: the shaft's projection is not degenerate."""
+    valid: the shaft's projection is not degenerate; shaft_end: (k, 4) the shaft's end
+    and its image direction (``Observation.shaft_end``), k = 0 unless asked for."""
 
     index: int
     stamp: float
@@ -151,14 +153,17 @@ class SynthFrame:
     lines: np.ndarray
     markers: np.ndarray
     valid: bool
+    shaft_end: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
 
     def observation(self, model: str = "line-intensities", markers: bool = True) -> Observation:
         """The estimators' input for ``model``: lines for the polar models, else pixel sets;
         edge_ids 0, 1 (edge i lies on limb i)."""
         mk = self.markers if markers else np.zeros((0, 2))
         if model in POLAR_MODELS:
-            return Observation(model, lines=self.lines, markers=mk, edge_ids=np.arange(2))
-        return Observation(model, pixels=self.pixels, markers=mk, edge_ids=np.arange(len(self.pixels)))
+            return Observation(model, lines=self.lines, markers=mk, edge_ids=np.arange(2),
+                               shaft_end=self.shaft_end.copy())
+        return Observation(model, pixels=self.pixels, markers=mk, edge_ids=np.arange(len(self.pixels)),
+                           shaft_end=self.shaft_end.copy())
 
     def frame(self):
         """The estimators' Frame (index, stamp, no image, DH joints, jaw)."""
@@ -168,8 +173,10 @@ class SynthFrame:
 def observe(scene: Scene, q: np.ndarray, E: np.ndarray, rng: np.random.Generator, index: int = 0,
             stamp: float = 0.0, pixels_per_edge: int = 250, pixel_noise: float = 1.0, outliers: float = 0.0,
             line_noise: tuple[float, float] = (0.0, 0.0), marker_noise: float = 0.0, span=SPAN,
-            marker_model: str = "disc") -> SynthFrame:
-    """Observations of joints q seen through E (module docstring); rng draws all noise."""
+            marker_model: str = "disc", shaft_end_noise: float | None = None) -> SynthFrame:
+    """Observations of joints q seen through E (module docstring); rng draws all noise.
+    ``shaft_end_noise`` (px, None: no shaft end): observe the shaft's end
+    (:mod:`graphtrack.geometry.shaft_end`) with this noise along the shaft's image."""
     if marker_model not in MARKER_MODELS:
         raise ValueError(f"marker_model {marker_model!r}: one of {MARKER_MODELS}")
     robot, cam = scene.robot, scene.camera
@@ -204,7 +211,13 @@ def observe(scene: Scene, q: np.ndarray, E: np.ndarray, rng: np.random.Generator
     mk = mk[facing]
     if marker_noise > 0 and len(mk):
         mk = mk + rng.normal(0, marker_noise, mk.shape)
-    return SynthFrame(index, stamp, q, E, pixels, lines, mk, bool(valid))
+    end = np.zeros((0, 4))
+    if shaft_end_noise is not None and robot.shaft_features[0].end is not None:
+        c = p0 + robot.shaft_features[0].end * d
+        ends = cam.project_undistorted(np.stack([c - 0.01 * d, front_point(c, d, r)]))
+        direction = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
+        end = np.concatenate([ends[1] + rng.normal(0.0, shaft_end_noise) * direction, direction])[None]
+    return SynthFrame(index, stamp, q, E, pixels, lines, mk, bool(valid), end)
 
 
 class Sequence(NamedTuple):

@@ -25,6 +25,7 @@ import numpy as np
 
 from graphtrack.geometry.cylinder import line_angles, project_cylinder_batch
 from graphtrack.geometry.se3 import so3_exp_batch
+from graphtrack.geometry.shaft_end import front_point
 from graphtrack.robot.kinematics import link_transforms
 
 
@@ -32,14 +33,16 @@ from graphtrack.robot.kinematics import link_transforms
 class FrameGeometry:
     """The frame's features mapped by E_0 (metres, camera frame of the prior).
 
-    V (3, 2 + 2M): columns [p0, d, markers_1..M, normals_1..M] (points and
-    directions); r: shaft radius (m); on_shaft (M,): markers painted on the
+    V (3, 2 + 2M (+ 1)): columns [p0, d, markers_1..M, normals_1..M] (points and
+    directions), then the centre of the shaft's distal end when robot.json gives it
+    (``has_end``); r: shaft radius (m); on_shaft (M,): markers painted on the
     shaft (visible only on the side facing the camera; their normals are the
     outward radial directions, zero for the others)."""
 
     V: np.ndarray
     r: float
     on_shaft: np.ndarray
+    has_end: bool = False
 
 
 def frame_geometry(robot, q: np.ndarray, E0: np.ndarray) -> FrameGeometry:
@@ -64,9 +67,10 @@ def frame_geometry(robot, q: np.ndarray, E0: np.ndarray) -> FrameGeometry:
     dist = np.linalg.norm(radial, axis=1)
     on_shaft = np.abs(dist - r) < 0.25 * r
     normals = np.where(on_shaft[:, None], radial / np.maximum(dist, 1e-12)[:, None], 0.0)
-    V = np.concatenate([(R0 @ p0 + t0)[:, None], (R0 @ d)[:, None],
-                        (pts @ R0.T + t0).T, (normals @ R0.T).T], axis=1)
-    return FrameGeometry(V, r, on_shaft)
+    cols = [(R0 @ p0 + t0)[:, None], (R0 @ d)[:, None], (pts @ R0.T + t0).T, (normals @ R0.T).T]
+    if sf.end is not None:
+        cols.append((R0 @ (p0 + sf.end * d) + t0)[:, None])
+    return FrameGeometry(np.concatenate(cols, axis=1), r, on_shaft, sf.end is not None)
 
 
 @dataclass
@@ -76,7 +80,10 @@ class Hypotheses:
     rho, cos, sin (2, N): the shaft limb lines cos(theta) x + sin(theta) y = rho
     (px); valid (N,); u, v (M, N): marker pixels; visible (M, N): in front of
     the camera and, for markers on the shaft, on the side facing it;
-    R (3, 3, N): R(w_n). ``theta`` (2, N) rad is computed when first read."""
+    R (3, 3, N): R(w_n); end_u, end_v (N,): where the shaft visibly ends along its
+    image, the projection of its end rim's front point
+    (:func:`graphtrack.geometry.shaft_end.front_point`), None without a shaft end.
+    ``theta`` (2, N) rad is computed when first read."""
 
     rho: np.ndarray
     cos: np.ndarray
@@ -86,6 +93,8 @@ class Hypotheses:
     v: np.ndarray
     visible: np.ndarray
     R: np.ndarray
+    end_u: np.ndarray | None = None
+    end_v: np.ndarray | None = None
     _theta: np.ndarray | None = None
 
     @property
@@ -123,7 +132,13 @@ def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray, extrinsic: np
     inv = 1.0 / np.where(front, z, 1e-9)
     u = K[0, 0] * pts[0] * inv + K[0, 2]
     v = K[1, 1] * pts[1] * inv + K[1, 2]
-    nrm = W[:, 2 + M:k]
+    nrm = W[:, 2 + M:2 + 2 * M]
     facing = (nrm * pts).sum(axis=0) < 0.0
     visible = front & (facing | ~on_shaft[:, None])
-    return Hypotheses(rho, cos, sin, valid, u, v, visible, R)
+    h = Hypotheses(rho, cos, sin, valid, u, v, visible, R)
+    if geometry.has_end:
+        P = front_point((W[:, k - 1] + b).T, W[:, 1].T, r)       # (N, 3)
+        iz = 1.0 / np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)      # behind the camera: NaN
+        h.end_u = K[0, 0] * P[:, 0] * iz + K[0, 2]
+        h.end_v = K[1, 1] * P[:, 1] * iz + K[1, 2]
+    return h
