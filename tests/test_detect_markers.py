@@ -98,3 +98,28 @@ def test_tinted_surface_is_not_a_marker():
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
     assert hsv[40:160, 30:230, 1].max() >= 50 and hsv[40:160, 30:230, 1].min() <= 30
     assert detect_markers(img).shape == (0, 2)
+
+
+def _black_shaft(marker: bool, speckles: bool) -> np.ndarray:
+    """A black shaft whose near-black pixels read a high, meaningless saturation (BGR (22, 12, 8):
+    S 163) on grey tissue, with a painted disc and / or blue-tinted speckles on the shaft
+    (BGR (52, 42, 38): through the colour test, V 30 above the shaft)."""
+    img = np.full((240, 320, 3), 120, np.uint8)
+    yy, xx = np.mgrid[:240, :320]
+    img[np.abs((yy - 0.5 * xx) - 40) < 35] = (22, 12, 8)
+    if speckles:
+        for x in range(40, 300, 24):
+            y = int(0.5 * x + 40)
+            img[y - 2:y + 2, x - 2:x + 2] = (52, 42, 38)
+    if marker:
+        img = paint(img, (200.0, 140.0), 8.0, (220, 120, 20))
+    return img
+
+
+def test_paint_on_a_black_shaft_is_a_marker_and_tinted_speckles_are_not():
+    """Saturation means nothing on a near-black ring: paint must be brighter than it instead."""
+    hsv = cv2.cvtColor(_black_shaft(False, False), cv2.COLOR_BGR2HSV)
+    assert hsv[100, 120, 1] > 150 and hsv[100, 120, 2] < 40        # the shaft: S high, V low
+    m = detect_markers(_black_shaft(True, True))
+    assert len(m) == 1 and np.hypot(*(m[0] - (200.0, 140.0))) < 0.5
+    assert detect_markers(_black_shaft(False, True)).shape == (0, 2)

@@ -16,7 +16,11 @@ r = clip(sqrt(area / pi) / 2, 3, 8) px around it, a blob is kept when
 
     S_in - S_ring >= contrast_min   and   S_in >= contrast_ratio * S_ring
 
-(an empty ring, at the image border, passes). Measured on randomized
+(an empty ring, at the image border, passes), or when the same holds for the
+chroma C = S V / 255: saturation means nothing on a near-black pixel (a black
+shaft's JPEG noise reads S 150), whose chroma is small, so paint on a black
+shaft passes on chroma where its ring's noisy S would reject it, while a
+blue-tinted speckle on the shaft (S 56, V 46: C 10) does not. Measured on randomized
 recordings: docs/decisions/marker-contrast.md. Each blob's centre is the
 weighted centroid
 
@@ -70,9 +74,9 @@ def _mask(img: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
 RING_MIN, RING_MAX = 3, 8    #: px, the saturation ring's width (module doc)
 
 
-def _saturated(sat: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.ndarray,
+def _saturated(sat: np.ndarray, chroma: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.ndarray,
                ids: np.ndarray, area: np.ndarray, cfg: MarkerConfig) -> np.ndarray:
-    """(len(ids),) bool: the blob is more saturated than its ring (module doc)."""
+    """(len(ids),) bool: the blob is more saturated, or more chromatic, than its ring (module doc)."""
     H, W = mask.shape
     keep = np.ones(len(ids), bool)
     for j, k in enumerate(ids):
@@ -84,10 +88,15 @@ def _saturated(sat: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.
                 > 0) & (mask[y0:y1, x0:x1] == 0)
         if not ring.any():
             continue
-        s_in = float(np.median(sat[y0:y1, x0:x1][blob > 0]))
-        s_ring = float(np.median(sat[y0:y1, x0:x1][ring]))
-        keep[j] = s_in - s_ring >= cfg.contrast_min and s_in >= cfg.contrast_ratio * s_ring
+        s, c = sat[y0:y1, x0:x1], chroma[y0:y1, x0:x1]
+        keep[j] = (_more(float(np.median(s[blob > 0])), float(np.median(s[ring])), cfg)
+                   or _more(float(np.median(c[blob > 0])), float(np.median(c[ring])), cfg))
     return keep
+
+
+def _more(inside: float, ring: float, cfg: MarkerConfig) -> bool:
+    """The blob stands out from its ring (saturation or chroma, OpenCV S units)."""
+    return inside - ring >= cfg.contrast_min and inside >= cfg.contrast_ratio * ring
 
 
 def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0: int = 0):
@@ -108,7 +117,8 @@ def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0:
     good = (area >= cfg.min_area) & (area <= max_area) & (sw > 0)
     good[0] = False  # background
     ids = np.flatnonzero(good)
-    ids = ids[_saturated(hsv[:, :, 1], mask, labels, stats, ids, area, cfg)]
+    chroma = (hsv[:, :, 1].astype(np.float32) * hsv[:, :, 2]) / 255.0
+    ids = ids[_saturated(hsv[:, :, 1], chroma, mask, labels, stats, ids, area, cfg)]
     return np.stack([sx[ids] / sw[ids] + x0, sy[ids] / sw[ids] + y0], 1), area[ids]
 
 
