@@ -98,9 +98,8 @@ class FactorOptions:
     edge_bias_every frames. Pixel sets are on it; so are the polar models' lines
     (the smoother's only once settled, ``line_bias`` of :func:`frame_factor_groups`).
     shaft_end_sigma (px) / shaft_end_robust: the detected shaft end's residual along
-    the shaft's image and its kernel (:mod:`factors.shaft_end`; Cauchy, width 2 sigma:
-    a step that is not the shaft's end is all but ignored, as in the particle filter's
-    floored term).
+    the shaft's image and its kernel (:mod:`factors.shaft_end`; Huber at 1.345 sigma,
+    as the other factors: a false end pulls with a bounded force).
 
     Why these defaults, with measurements: docs/decisions/pixel-effective-count.md,
     edge-bias-state.md, marker-gate.md, painted-disc-markers.md, band-weight.md.
