@@ -14,7 +14,7 @@ difference stereo - mono with its moving-block bootstrap interval
 Speed. The stereo smoother runs above are timed by ``track`` itself: frames/s in the
 steady state (1000 / mean per-frame ms of frames 1.., as bench_track.py reads
 ``fps_steady``), median over the recordings. PF: one predict + update of 1000
-particles with both images' observations (~500 shaft pixels and 4 markers each), as
+particles with both images' observations (~500 shaft pixels, 4 markers and the shaft end each), as
 bench_pf.py times the mono step (median of 200 after 20 warm-up steps).
 """
 from __future__ import annotations
@@ -113,19 +113,21 @@ def _pf(out: dict) -> None:
     right = Camera(cam.K.copy(), np.zeros(5), cam.height, cam.width)
     ctx = TrackingContext(scene.robot, cam, scene.E0, right, C)
     E_true = scene.true_E(HANDEYE_ERROR)
-    seq = sequence(64, seed=0, scene=scene, pixels_per_edge=250, outliers=0.05, marker_model="point")
+    seq = sequence(64, seed=0, scene=scene, pixels_per_edge=250, outliers=0.05, marker_model="point",
+                   shaft_end_noise=1.0)
     rng = np.random.default_rng(0)
     frames = []
     for f in seq.frames:
         # all four markers in each image, visible or not, as bench_pf.py
         m = base_features(scene.robot, f.q).transformed(E_true).points
         mk = cam.project_undistorted(m) + rng.standard_normal((4, 2))
-        left = Observation("line-intensities", pixels=f.pixels, markers=mk, edge_ids=np.arange(2))
+        left = Observation("line-intensities", pixels=f.pixels, markers=mk, edge_ids=np.arange(2),
+                           shaft_end=f.shaft_end)
         o = observe(Scene(scene.robot, right, scene.E0), f.q, C @ E_true, rng, pixels_per_edge=250,
-                    outliers=0.05, marker_model="point")
+                    outliers=0.05, marker_model="point", shaft_end_noise=1.0)
         mr = right.project_undistorted(m @ C[:3, :3].T + C[:3, 3]) + rng.standard_normal((4, 2))
         frames.append((f.frame(), left, Observation("line-intensities", pixels=o.pixels, markers=mr,
-                                                    edge_ids=np.arange(2))))
+                                                    edge_ids=np.arange(2), shaft_end=o.shaft_end)))
     for stereo in (True, False):
         pf = ParticleFilter(ctx, particles=PARTICLES, seed=0)
         ts = []

@@ -37,7 +37,7 @@ TARGETS = [
      30, ">=fps", "frames/s"),
     ("detect", "learned.tissue.free.ms", "learned detector at 540x960 incl. segment extraction, tissue",
      30, ">=fps", "frames/s"),
-    ("pf", "step_ms_1000", "PF predict+update, 1000 particles, ~500 px, 4 markers", 3, "<=", "ms"),
+    ("pf", "step_ms_1000", "PF predict+update, 1000 particles, ~500 px, 4 markers, shaft end", 3, "<=", "ms"),
     ("smoother", "online_lag1.0_median_ms", "smoother online update (median), 1 s lag, ~500 px + markers",
      3, "<=", "ms"),
     ("smoother", "batch_s", "batch refinement of 1800 frames", 20, "<=", "s"),

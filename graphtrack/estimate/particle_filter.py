@@ -164,7 +164,11 @@ class ParticleFilter:
     # -- projection of every hypothesis -----------------------------------------------
     def _frame_geometry(self, q: np.ndarray):
         """:func:`graphtrack.estimate.pf.projection.frame_geometry` of reading q,
-        cached for the last q (predicted_lines and step read the same frame)."""
+        cached for the last q (predicted_lines and step read the same frame); with a
+        search, its scorer's cache, which maps by the same E_0 (``ctx.handeye``) and
+        scores the same frame."""
+        if self.search is not None:
+            return self.search.scorer.frame_geometry(q)
         q = np.asarray(q, float)
         key = q.tobytes()
         if self._geometry_cache is None or self._geometry_cache[0] != key:
