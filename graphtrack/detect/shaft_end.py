@@ -180,12 +180,19 @@ def _wrist_apart(sample, o, d, s, tc, h, i: int, k: int, cfg: ShaftEndConfig) ->
         return np.median(c, axis=0) if len(c) else None
 
     after = median_colour(0.0)
-    if after is not None and len(after) >= 3 and np.ptp(after[:3]) > cfg.max_saturation * max(after[:3].max(), 1.0):
+    if after is not None and _saturation(after) > cfg.max_saturation:
         return 0.0                       # coloured: not the metal wrist
     sides = [c for c in (median_colour(-cfg.outside), median_colour(cfg.outside)) if c is not None]
     if after is None or not sides:
         return np.inf
     return float(min(np.linalg.norm(after - c) for c in sides))
+
+
+def _saturation(colour: np.ndarray) -> float:
+    """(max - min) / max of a BGR colour; 0 for a grey image's single channel."""
+    if len(colour) < 3:
+        return 0.0
+    return float(np.ptp(colour[:3]) / max(colour[:3].max(), 1.0))
 
 
 def _centre_crossing(sample, o, d, s, tc, h, i: int, level: float, k: int, rows) -> float | None:

@@ -237,7 +237,8 @@ class Pipeline:
             gate = self.gate(frame)
             self._end_gate = self.end_gate(frame)
             detection, observation = self._image(frame.image, self.ctx.camera, self.detect_camera,
-                                                 self.predicted_lines(frame), gate, ms, self.predicted_end(frame))
+                                                 self.predicted_lines(frame), gate, ms,
+                                                 self.predicted_end(frame))
             if self.stereo and frame.image_right is not None:
                 self.right = self._image(frame.image_right, self.ctx.right, self.detect_right,
                                          self.predicted_lines(frame, right=True), gate, ms,
