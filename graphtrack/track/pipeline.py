@@ -18,8 +18,8 @@ from graphtrack.detect import make_detector, observe, shaft_end
 from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.estimate import estimator_class, make_estimator
 from graphtrack.estimate.options import EstimatorOptions
-from graphtrack.io.context import TrackingContext
 from graphtrack.geometry.shaft_end import front_point
+from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, shaft_lines
 
@@ -100,7 +100,7 @@ class Pipeline:
         self.last_E = ctx.handeye.copy()
         self.last_std = None          # nothing known before the first estimate: widest gate
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
-        self._end_gate = float('inf')  # px, this frame's end_gate
+        self._end_gate = float("inf")  # px, this frame's end_gate
         self.rng = np.random.default_rng(options.seed)
 
     def predicted_lines(self, frame: Frame, right: bool = False) -> np.ndarray | None:
@@ -209,8 +209,9 @@ class Pipeline:
 
     def end_gate(self, frame: Frame) -> float:
         """px: how far along the shaft's image a detected end may lie from the predicted
-        one, max(``END_GATE_MIN_PX``, 3 s) with s of :meth:`gate` at full size (inf before
-        the first estimate, or without a covariance)."""
+        one, max(``END_GATE_MIN_PX``, 3 s), s = f (|std_b| / Z + |std_w|) at full size:
+        :meth:`gate`'s spread over all three axes, as the slide may lie along any (inf
+        before the first estimate, or without a covariance)."""
         std = self.last_std
         if std is None or not np.all(np.isfinite(std)):
             return float("inf")
