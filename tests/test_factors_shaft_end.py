@@ -22,7 +22,7 @@ def scene():
     F = base_features(robot, f.q)
     sf = robot.shaft_features[0]
     assert sf.end is not None
-    centre = F.shaft_p0[0] + sf.end * F.shaft_d[0]
+    centre = F.shaft_end[0]
     return robot, cam, E0, f, F, centre
 
 

@@ -238,8 +238,7 @@ def _end_factors(x: int, observation, robot, q, F, K, opts: FactorOptions, extri
     sf = robot.shaft_features[0]
     if len(end) == 0 or sf.end is None:
         return []
-    centre = F.shaft_p0[0] + sf.end * F.shaft_d[0]
-    return [shaft_end_factor(x, end[0, :2], end[0, 2:], centre, F.shaft_d[0], F.shaft_r[0], K,
+    return [shaft_end_factor(x, end[0, :2], end[0, 2:], F.shaft_end[0], F.shaft_d[0], F.shaft_r[0], K,
                              opts.shaft_end_sigma, make_kernel(opts.shaft_end_robust), extrinsic)]
 
 

@@ -57,3 +57,17 @@ def front_point_jacobian(c: np.ndarray, a: np.ndarray, r: float) -> tuple[np.nda
     dw_dc = -np.eye(3) + np.outer(a, a)
     dw_da = np.outer(a, c) + ca * np.eye(3)
     return c + r * u, np.eye(3) + r * proj @ dw_dc, r * proj @ dw_da
+
+
+def end_pixel(c: np.ndarray, a: np.ndarray, r: float, K: np.ndarray):
+    """(pixel (2,), direction (2,)): the image of P (module doc) under the pinhole K and
+    the unit image direction along the shaft towards it (from the image of c - 1 cm a);
+    None when either point is behind the camera or the direction is degenerate."""
+    a = np.asarray(a, float)
+    pts = np.stack([np.asarray(c, float) - 0.01 * a, front_point(c, a, r)]) @ np.asarray(K, float).T
+    if not np.all(pts[:, 2] > 1e-6):
+        return None
+    uv = pts[:, :2] / pts[:, 2:]
+    d = uv[1] - uv[0]
+    n = np.linalg.norm(d)
+    return (uv[1], d / n) if n > 1e-9 else None

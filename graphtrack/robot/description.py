@@ -72,13 +72,6 @@ class ShaftFeature:
     radius: float
     end: float | None = None
 
-    def end_centre(self) -> np.ndarray | None:
-        """The centre of the shaft's distal end in the link frame (3,), m, or None."""
-        if self.end is None:
-            return None
-        d = np.asarray(self.direction, float)
-        return np.asarray(self.position, float) + self.end * d / np.linalg.norm(d)
-
 
 @dataclass(frozen=True)
 class SkeletonSegment:

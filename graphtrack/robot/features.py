@@ -27,7 +27,9 @@ class Features:
 
     points: (..., P, 3) point features (markers) in robot.point_features order;
     shaft_p0, shaft_d: (..., S, 3) point on and unit direction of each shaft axis;
-    shaft_r: (S,) radii; tip: (..., 3) or None; skeleton: (..., K, 2, 3).
+    shaft_r: (S,) radii; tip: (..., 3) or None; skeleton: (..., K, 2, 3);
+    shaft_end: (..., S, 3) the centre of each shaft's distal end (robot.json ``end``,
+    NaN for a shaft without one, :mod:`graphtrack.geometry.shaft_end`).
     """
 
     points: np.ndarray
@@ -36,6 +38,7 @@ class Features:
     shaft_r: np.ndarray
     tip: np.ndarray | None
     skeleton: np.ndarray
+    shaft_end: np.ndarray | None = None
 
     def transformed(self, E: np.ndarray) -> "Features":
         """Apply E (..., 4, 4) (e.g. N hypotheses, N x 4 x 4) to every feature.
@@ -62,6 +65,7 @@ class Features:
             shaft_r=self.shaft_r,
             tip=None if self.tip is None else pts(self.tip, 0),
             skeleton=pts(self.skeleton, 2),
+            shaft_end=None if self.shaft_end is None else pts(self.shaft_end, 1),
         )
 
 
@@ -93,13 +97,17 @@ def base_features(robot: RobotDescription, q: np.ndarray) -> Features:
         tip_xyz = on_links([tip_feat.link], [tip_feat.position])[..., 0, :]
     skel = np.stack([on_links([s.link1 for s in sk], [s.position1 for s in sk]),
                      on_links([s.link2 for s in sk], [s.position2 for s in sk])], axis=-2)
+    shaft_p0 = on_links([s.link for s in sf], [s.position for s in sf])
+    shaft_d = dir_on_links([s.link for s in sf], [s.direction for s in sf])
+    ends = np.array([np.nan if s.end is None else s.end for s in sf], dtype=float)
     return Features(
         points=on_links([p.link for p in pf], [p.position for p in pf]),
-        shaft_p0=on_links([s.link for s in sf], [s.position for s in sf]),
-        shaft_d=dir_on_links([s.link for s in sf], [s.direction for s in sf]),
+        shaft_p0=shaft_p0,
+        shaft_d=shaft_d,
         shaft_r=np.array([s.radius for s in sf], dtype=float),
         tip=tip_xyz,
         skeleton=skel,
+        shaft_end=shaft_p0 + ends[:, None] * shaft_d,
     )
 
 

@@ -47,7 +47,7 @@ from graphtrack.geometry.camera import Camera
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
 from graphtrack.geometry.painted_marker import disc_centroid
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
-from graphtrack.geometry.shaft_end import front_point
+from graphtrack.geometry.shaft_end import end_pixel
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, marker_discs
@@ -212,11 +212,10 @@ def observe(scene: Scene, q: np.ndarray, E: np.ndarray, rng: np.random.Generator
     if marker_noise > 0 and len(mk):
         mk = mk + rng.normal(0, marker_noise, mk.shape)
     end = np.zeros((0, 4))
-    if shaft_end_noise is not None and robot.shaft_features[0].end is not None:
-        c = p0 + robot.shaft_features[0].end * d
-        ends = cam.project_undistorted(np.stack([c - 0.01 * d, front_point(c, d, r)]))
-        direction = (ends[1] - ends[0]) / np.linalg.norm(ends[1] - ends[0])
-        end = np.concatenate([ends[1] + rng.normal(0.0, shaft_end_noise) * direction, direction])[None]
+    seen = None if shaft_end_noise is None or robot.shaft_features[0].end is None else \
+        end_pixel(F.shaft_end[0], d, r, cam.K)
+    if seen is not None:
+        end = np.concatenate([seen[0] + rng.normal(0.0, shaft_end_noise) * seen[1], seen[1]])[None]
     return SynthFrame(index, stamp, q, E, pixels, lines, mk, bool(valid), end)
 
 

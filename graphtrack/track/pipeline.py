@@ -18,7 +18,7 @@ from graphtrack.detect import make_detector, observe, shaft_end
 from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.estimate import estimator_class, make_estimator
 from graphtrack.estimate.options import EstimatorOptions
-from graphtrack.geometry.shaft_end import front_point
+from graphtrack.geometry.shaft_end import end_pixel
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, shaft_lines
@@ -197,15 +197,7 @@ class Pipeline:
         K = self.ctx.camera.K
         if right:
             feats, K = feats.transformed(self.ctx.right_T_left), self.ctx.right.K
-        a = feats.shaft_d[0]
-        c = feats.shaft_p0[0] + shafts[0].end * a
-        pts = np.stack([c - 0.01 * a, front_point(c, a, shafts[0].radius)]) @ np.asarray(K, float).T
-        if not np.all(pts[:, 2] > 1e-6):
-            return None
-        uv = pts[:, :2] / pts[:, 2:]
-        d = uv[1] - uv[0]
-        n = np.linalg.norm(d)
-        return (uv[1], d / n) if n > 1e-9 else None
+        return end_pixel(feats.shaft_end[0], feats.shaft_d[0], shafts[0].radius, K)
 
     def end_gate(self, frame: Frame) -> float:
         """px: how far along the shaft's image a detected end may lie from the predicted
