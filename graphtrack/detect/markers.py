@@ -74,7 +74,7 @@ def _mask(img: np.ndarray, cfg: MarkerConfig) -> tuple[np.ndarray, np.ndarray]:
 RING_MIN, RING_MAX = 3, 8    #: px, the saturation ring's width (module doc)
 
 
-def _saturated(sat: np.ndarray, chroma: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.ndarray,
+def _saturated(sat: np.ndarray, val: np.ndarray, mask: np.ndarray, labels: np.ndarray, stats: np.ndarray,
                ids: np.ndarray, area: np.ndarray, cfg: MarkerConfig) -> np.ndarray:
     """(len(ids),) bool: the blob is more saturated, or more chromatic, than its ring (module doc)."""
     H, W = mask.shape
@@ -88,7 +88,8 @@ def _saturated(sat: np.ndarray, chroma: np.ndarray, mask: np.ndarray, labels: np
                 > 0) & (mask[y0:y1, x0:x1] == 0)
         if not ring.any():
             continue
-        s, c = sat[y0:y1, x0:x1], chroma[y0:y1, x0:x1]
+        s = sat[y0:y1, x0:x1]
+        c = (s.astype(np.float32) * val[y0:y1, x0:x1]) / 255.0     # chroma, only where a blob is
         keep[j] = (_more(float(np.median(s[blob > 0])), float(np.median(s[ring])), cfg)
                    or _more(float(np.median(c[blob > 0])), float(np.median(c[ring])), cfg))
     return keep
@@ -117,8 +118,7 @@ def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0:
     good = (area >= cfg.min_area) & (area <= max_area) & (sw > 0)
     good[0] = False  # background
     ids = np.flatnonzero(good)
-    chroma = (hsv[:, :, 1].astype(np.float32) * hsv[:, :, 2]) / 255.0
-    ids = ids[_saturated(hsv[:, :, 1], chroma, mask, labels, stats, ids, area, cfg)]
+    ids = ids[_saturated(hsv[:, :, 1], hsv[:, :, 2], mask, labels, stats, ids, area, cfg)]
     return np.stack([sx[ids] / sw[ids] + x0, sy[ids] / sw[ids] + y0], 1), area[ids]
 
 
