@@ -179,6 +179,36 @@ def test_a_lock_uses_only_frames_it_explains_as_well_as_those_that_formed_it():
     assert policy.rejected and policy.rejections == 1
 
 
+def test_a_lock_from_before_a_gap_is_earned_again():
+    """After ``gap`` frames without detections the lock is stale (E drifts with the arm's
+    configuration while the tool is unseen): the first frames back are used, not gated,
+    even when the prediction explains them only partly (misfit between the lock's
+    threshold and the monitor's); the same frame on a lock without a gap is an outlier."""
+    world = make_world(3, 3.0, 1.5)
+    x_true = matrix_to_bw(world.E_true @ invert(world.ctx.handeye))
+    q_back, _ = _frame(world, 40)
+    partial = None
+    for turn in np.linspace(0.005, 0.06, 23):        # about the optical axis, rad: the misfit rises smoothly
+        obs = _obs(world, q_back, bw_to_matrix(np.array([0, 0, 0, 0, 0, turn])) @ world.E_true, 40)
+        m = misfit(*SearchInit(world.ctx, seed=0).scorer.with_floor(q_back, obs, x_true))
+        if 0.25 < m <= 0.5:
+            partial = obs
+            break
+    assert partial is not None
+    for gap in (0, 30):
+        policy = SearchInit(world.ctx, seed=0, gap=30)
+        for t in range(1 + policy.lock_frames):
+            qt, _ = _frame(world, t)
+            policy.propose(qt, _obs(world, qt, world.E_true, t), world.E_true, True)
+        assert policy.locked
+        for t in range(gap):
+            qt, _ = _frame(world, 12 + t)
+            policy.propose(qt, Observation(MODEL), world.E_true, False)
+        policy.propose(q_back, partial, world.E_true, True)
+        assert policy.rejected == (gap == 0), gap
+        assert policy.locked == (gap == 0)
+
+
 def test_the_smoother_never_reports_an_estimate_outside_the_prior_region():
     """Ungated, an occluder 8 mm off drags the smoother's Gauss-Newton steps past the hand-eye
     prior's region (prior_distance computed by hand below). Such an estimate is not reported:

@@ -52,7 +52,9 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
 - Innovation gate: while *locked* (``lock_frames`` consecutive frames the
   estimator used were explained, misfit <= ``lock_threshold``; before a lock, a
   frame with a misfit between that and the threshold neither extends nor ends
-  one), a frame that the lock does not explain as well as it explained those
+  one; ``gap`` or more frames without detections end it: E drifts with the arm's
+  configuration while the tool is unseen, so the lock is earned again,
+  docs/decisions/lock-after-a-gap.md), a frame that the lock does not explain as well as it explained those
   (misfit at the current estimate above ``lock_threshold``) is an outlier frame
   (``rejected``): the estimator predicts through it without its detections.
   An occluder (a second instrument, a tissue fold) that covers the shaft shows
@@ -294,6 +296,8 @@ class SearchInit:
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
         after_gap = self.since >= self.gap and not m_cur <= self.threshold \
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
+        if self.since >= self.gap:
+            self.lock_run = 0     # a lock from before a gap is stale: it is earned again
         self.since = 0
         if after_gap:
             self._restart_challenge()
