@@ -57,6 +57,19 @@ def test_finds_the_drawn_step_to_a_fraction_of_a_pixel():
     assert abs(_offset(locate(raw_sampler(_band()), lines, short, D))) < 0.3
 
 
+def test_segments_running_past_the_end_are_covered_by_the_prediction():
+    """A detector's segments may run on past the shaft's end (along the narrower wrist's
+    edges): 70 px past it, the profile around their end sees only the background, and
+    the end is found only when the predicted end (3 px off) widens the profile."""
+    lines, segs = _lines_and_segments()
+    long = segs.copy()
+    long[:, 2:] += 70 * D
+    img = raw_sampler(_band())
+    assert locate(img, lines, long, D) is None
+    end = locate(img, lines, long, D, predicted=O + 3.0 * D)
+    assert end is not None and abs(_offset(end)) < 0.3
+
+
 def test_a_marker_on_the_shaft_does_not_move_it():
     lines, segs = _lines_and_segments()
     end = locate(raw_sampler(_band(blob=(-12.0, 3.5, 230.0))), lines, segs, D)

@@ -14,9 +14,10 @@ distal direction (from the prediction: the side of the band the wrist is on):
    cross-section p = o + s d + t n (n normal to d) meets l_i at t_i(s), the band's
    centre is t_c = (t_1 + t_2) / 2 and its half-width h(s) = |t_1 - t_2| / 2;
 2. the grey profile g(s) is the median of ``samples`` samples across the middle
-   ``width`` of the band (|t - t_c| <= width h), every ``step`` px of s in a
-   window of ``search`` px either side of the detected edges' distal end (the
-   median ignores a marker or a highlight covering part of the cross-section);
+   ``width`` of the band (|t - t_c| <= width h), every ``step`` px of s from
+   ``search`` px before to ``search`` px after the detected edges' distal end and
+   the predicted end (the median ignores a marker or a highlight covering part of
+   the cross-section);
 3. the step score D(s) = median g over (s, s + L] - median g over [s - L, s),
    L = ``window`` h; the end s* is its first local maximum from the shaft's side
    that reaches max(``min_contrast`` grey levels, ``rival`` x its largest value,
@@ -55,7 +56,8 @@ import numpy as np
 class ShaftEndConfig:
     """Settings (px of the full-size undistorted image, grey levels, fractions)."""
 
-    search: float = 40.0       #: px either side of the detected edges' distal end
+    search: float = 40.0       #: px either side of the detected edges' distal end (and the predicted end)
+    reach: float = 160.0       #: px: the predicted end widens the profile by at most this
     step: float = 0.5          #: px between profile samples along the axis
     width: float = 0.5         #: fraction of the half-width sampled either side of the axis
     samples: int = 7           #: samples across
@@ -210,11 +212,14 @@ def _centre_crossing(sample, o, d, s, tc, h, i: int, level: float, k: int, rows)
 
 
 def locate(sample, lines: np.ndarray, segments: np.ndarray, distal: np.ndarray,
-           config: ShaftEndConfig | None = None) -> ShaftEnd | None:
+           config: ShaftEndConfig | None = None, predicted: np.ndarray | None = None) -> ShaftEnd | None:
     """The shaft's end (module doc). lines (2, 2) (rho, theta), segments (2, 4) the
     shaft edges' segments (undistorted full-size px); distal (2,): the image
-    direction towards the wrist (any length). None if the band is degenerate or no
-    step reaches the contrast."""
+    direction towards the wrist (any length); predicted (2,): where the estimate
+    puts the end, or None. The profile spans ``search`` px either side of both the
+    segments' distal end and the predicted end (a detector's segment may run on past
+    the shaft's end along the narrower wrist's edges, or stop short of it under an
+    occluder; by at most ``reach`` px). None if the band is degenerate or no step reaches the contrast."""
     cfg = config or ShaftEndConfig()
     lines = np.asarray(lines, float).reshape(-1, 2)
     segments = np.asarray(segments, float).reshape(-1, 4)
@@ -230,8 +235,12 @@ def locate(sample, lines: np.ndarray, segments: np.ndarray, distal: np.ndarray,
     d /= np.linalg.norm(d)
     ends = segments.reshape(-1, 2)
     o = ends.mean(0)
-    s_end = float(np.max((ends - o) @ d))
-    s = np.arange(s_end - cfg.search, s_end + cfg.search + 1e-9, cfg.step)
+    s_lo = s_hi = float(np.max((ends - o) @ d))
+    if predicted is not None and np.all(np.isfinite(predicted)):
+        s_pred = float((np.asarray(predicted, float) - o) @ d)
+        s_pred = float(np.clip(s_pred, s_lo - cfg.reach, s_hi + cfg.reach))
+        s_lo, s_hi = min(s_lo, s_pred), max(s_hi, s_pred)
+    s = np.arange(s_lo - cfg.search, s_hi + cfg.search + 1e-9, cfg.step)
     tc, h = _band(lines, o, d, s)
     if tc is None or np.median(h) < cfg.min_half_width:
         return None

@@ -217,7 +217,7 @@ class Pipeline:
         if predicted is None or len(detection.shaft_lines) != 2:
             return None
         end = shaft_end.locate(shaft_end.raw_sampler(image, camera), detection.shaft_lines,
-                               detection.shaft_segments, predicted[1])
+                               detection.shaft_segments, predicted[1], predicted=predicted[0])
         if end is None or abs(end.direction @ (end.point - predicted[0])) > self._end_gate:
             return None
         return np.concatenate([end.point, end.direction])[None]
