@@ -219,7 +219,8 @@ def locate(sample, lines: np.ndarray, segments: np.ndarray, distal: np.ndarray,
     puts the end, or None. The profile spans ``search`` px either side of both the
     segments' distal end and the predicted end (a detector's segment may run on past
     the shaft's end along the narrower wrist's edges, or stop short of it under an
-    occluder; by at most ``reach`` px). None if the band is degenerate or no step reaches the contrast."""
+    occluder; by at most ``reach`` px). None if the band is degenerate or no step
+    reaches the contrast."""
     cfg = config or ShaftEndConfig()
     lines = np.asarray(lines, float).reshape(-1, 2)
     segments = np.asarray(segments, float).reshape(-1, 4)
