@@ -236,11 +236,11 @@ def locate(sample, lines: np.ndarray, segments: np.ndarray, distal: np.ndarray,
     d /= np.linalg.norm(d)
     ends = segments.reshape(-1, 2)
     o = ends.mean(0)
-    s_lo = s_hi = float(np.max((ends - o) @ d))
+    s_end = float(np.max((ends - o) @ d))          # the segments' distal end along d
+    s_lo = s_hi = s_end
     if predicted is not None and np.all(np.isfinite(predicted)):
-        s_pred = float((np.asarray(predicted, float) - o) @ d)
-        s_pred = float(np.clip(s_pred, s_lo - cfg.reach, s_hi + cfg.reach))
-        s_lo, s_hi = min(s_lo, s_pred), max(s_hi, s_pred)
+        s_pred = float(np.clip((np.asarray(predicted, float) - o) @ d, s_end - cfg.reach, s_end + cfg.reach))
+        s_lo, s_hi = min(s_end, s_pred), max(s_end, s_pred)
     s = np.arange(s_lo - cfg.search, s_hi + cfg.search + 1e-9, cfg.step)
     tc, h = _band(lines, o, d, s)
     if tc is None or np.median(h) < cfg.min_half_width:
