@@ -174,20 +174,22 @@ def _wrist_apart(sample, o, d, s, tc, h, i: int, k: int, cfg: ShaftEndConfig) ->
     of its BGR above ``max_saturation``): the wrist is bare metal."""
     n = np.array([-d[1], d[0]])
     j = slice(i + 1, min(len(s), i + k + 1))
+    taus = np.array([0.0, -cfg.outside, cfg.outside])
+    pts = o + s[j, None, None] * d + (tc[j, None] + taus[None, :] * h[j, None])[..., None] * n   # (k, 3, 2)
+    c = sample.colour(pts.reshape(-1, 2)).reshape(pts.shape[0], 3, -1)    # one read for the three rows
 
-    def median_colour(tau):
-        pts = o + s[j, None] * d + (tc[j] + tau * h[j])[:, None] * n
-        c = sample.colour(pts)
-        c = c[np.all(np.isfinite(c), axis=1)]
-        return np.median(c, axis=0) if len(c) else None
+    def median_colour(r):
+        cr = c[:, r]
+        cr = cr[np.all(np.isfinite(cr), axis=1)]
+        return np.median(cr, axis=0) if len(cr) else None
 
-    after = median_colour(0.0)
+    after = median_colour(0)
     if after is not None and _saturation(after) > cfg.max_saturation:
         return 0.0                       # coloured: not the metal wrist
-    sides = [c for c in (median_colour(-cfg.outside), median_colour(cfg.outside)) if c is not None]
+    sides = [m for m in (median_colour(1), median_colour(2)) if m is not None]
     if after is None or not sides:
         return np.inf
-    return float(min(np.linalg.norm(after - c) for c in sides))
+    return float(min(np.linalg.norm(after - m) for m in sides))
 
 
 def _saturation(colour: np.ndarray) -> float:
@@ -202,10 +204,12 @@ def _centre_crossing(sample, o, d, s, tc, h, i: int, level: float, k: int, rows)
     ``level`` nearest sample i (within k samples), as a sample index; None if none does."""
     lo, hi = max(0, i - k), min(len(s), i + k + 1)
     n = np.array([-d[1], d[0]])
+    taus = np.asarray(rows, float)
+    pts = o + s[lo:hi, None, None] * d + (tc[lo:hi, None] + taus[None, :] * h[lo:hi, None])[..., None] * n
+    g = sample(pts.reshape(-1, 2)).reshape(hi - lo, len(taus))      # one read for all rows
     found = []
-    for tau in rows:
-        pts = o + s[lo:hi, None] * d + (tc[lo:hi] + tau * h[lo:hi])[:, None] * n
-        x = _crossing(sample(pts), i - lo, level, k)
+    for r in range(len(taus)):
+        x = _crossing(g[:, r], i - lo, level, k)
         if x is not None:
             found.append(lo + x)
     return float(np.median(found)) if found else None
