@@ -29,6 +29,7 @@ out at exactly theta = 3 pi / 4, 20-40 deg off the edge;
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,9 +62,23 @@ def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     c = p.mean(0)
     q = p - c
     x, y = q[:, 0], q[:, 1]
-    rho, theta = tls_from_moments(w.sum(), w @ x, w @ y, w @ (x * x), w @ (x * y), w @ (y * y))
-    rho = rho + np.cos(theta) * c[0] + np.sin(theta) * c[1]
-    return np.array([float(rho), float(theta)])
+    n = float(w.sum())
+    # tls_from_moments and canonical for one line, in scalars (numpy's 0-d call overhead
+    # was most of the sub-pixel refinement's fit)
+    mx, my = float(w @ x) / n, float(w @ y) / n
+    cxx = float(w @ (x * x)) / n - mx * mx
+    cxy = float(w @ (x * y)) / n - mx * my
+    cyy = float(w @ (y * y)) / n - my * my
+    theta = 0.5 * math.atan2(2.0 * cxy, cxx - cyy) + 0.5 * math.pi
+    rho = math.cos(theta) * mx + math.sin(theta) * my
+    k = math.floor(theta / math.pi)
+    theta -= k * math.pi
+    if k % 2 == 1:
+        rho = -rho
+    if theta >= math.pi:
+        rho, theta = -rho, theta - math.pi
+    rho = rho + math.cos(theta) * float(c[0]) + math.sin(theta) * float(c[1])
+    return np.array([rho, theta])
 
 
 @dataclass

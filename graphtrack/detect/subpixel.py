@@ -35,6 +35,7 @@ docs/decisions/subpixel-edges.md.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -146,9 +147,12 @@ def fit_edge(p: EdgeProfiles, polarity: float, config: SubpixelConfig | None = N
     k = np.argmax(g, axis=1)
     peak = g[np.arange(S), k]
     inside = (k >= 2) & (k <= T - 3) & (peak > 0)
-    if inside.sum() < cfg.min_samples or np.median(peak[inside]) < cfg.min_gradient:
+    if inside.sum() < cfg.min_samples:
         return None
-    rows = np.flatnonzero(inside & (peak >= cfg.min_strength * np.median(peak[inside])))
+    median_peak = float(np.median(peak[inside]))
+    if median_peak < cfg.min_gradient:
+        return None
+    rows = np.flatnonzero(inside & (peak >= cfg.min_strength * median_peak))
     if len(rows) < cfg.min_samples:
         return None
     G = g[rows]
@@ -168,7 +172,7 @@ def fit_edge(p: EdgeProfiles, polarity: float, config: SubpixelConfig | None = N
     pts = p.a + p.s[rows, None] * p.d + off[:, None] * p.n
     line = fit_line_tls(pts)
     for _ in range(2):
-        r = np.abs(np.cos(line[1]) * pts[:, 0] + np.sin(line[1]) * pts[:, 1] - line[0])
+        r = np.abs(math.cos(line[1]) * pts[:, 0] + math.sin(line[1]) * pts[:, 1] - line[0])
         keep = r <= cfg.inlier
         if keep.sum() < max(cfg.min_samples, cfg.min_fraction * S):
             return None
