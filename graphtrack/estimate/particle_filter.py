@@ -23,7 +23,9 @@ covariance (a^2 Sigma + h^2 Sigma = Sigma): jitter alone would inflate Sigma by
 constrain (docs/decisions/pf-kernel-shrinkage.md).
 Estimate: b = sum w_n b_n, R the chordal L2 mean of R(w_n), E_t = [R b; 0 1] . E_0;
 ``Estimate.std``/``cov``: the weighted covariance of x. With ``search`` the cloud is
-started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`).
+started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`);
+with ``window_move``, 8 and 16 frames after each start it is shifted whole to the mode
+of the frames since, when that mode is clearly better (:mod:`graphtrack.estimate.pf.window_move`).
 
 Defaults (the dVRK tracker's motion model, a wider initial spread, roughening 0.5)
 and their measurements: docs/decisions/pf-initial-spread-and-roughening.md,
@@ -40,6 +42,7 @@ from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
+from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, window_mode
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
@@ -62,7 +65,9 @@ class ParticleFilter:
     pixels (Observation.bands; 1/4: twice the pixel sigma, docs/decisions/band-weight.md),
     in the likelihood and the search; marker_gamma (1/px), marker_gate (px; times
     gate_scale, the full-size pixels per detection pixel, which the tracking
-    pipeline sets to 1 / its detection scale, as for the smoother).
+    pipeline sets to 1 / its detection scale, as for the smoother); window_move:
+    shift the cloud to the mode of the frames since its start, 8 and 16 frames after
+    it (:mod:`graphtrack.estimate.pf.window_move`; off: the filter without it).
     Each Observation carries its own ``model``, which is what is scored.
     """
 
@@ -89,7 +94,7 @@ class ParticleFilter:
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
                  search_hypotheses: int = 2048, reinit_gap: int = 30,
-                 marker_gate_follows_covariance: bool = False):
+                 marker_gate_follows_covariance: bool = False, window_move: bool = True):
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
@@ -99,6 +104,9 @@ class ParticleFilter:
         self.N = int(particles)
         self.use_markers = bool(markers)
         self.rng = np.random.default_rng(seed)
+        self.window_move = bool(window_move)       # pf/window_move.py
+        self._move_rng = np.random.default_rng([int(seed), 1])   # its own draws: the cloud's stay as they were
+        self.window_moves = 0
         self.motion_std = np.array([motion_std_b] * 3 + [motion_std_w] * 3, dtype=float)
         self.init_std = np.array([init_std_b] * 3 + [init_std_w] * 3, dtype=float)
         self.resample_threshold = float(resample_threshold)
@@ -141,6 +149,7 @@ class ParticleFilter:
         self.x = centre + self.rng.standard_normal((self.N, 6)) * self.init_std
         self.logw = np.full(self.N, -np.log(self.N))
         self.t = 0
+        self._window = []     # (q, observation, right) of the frames used since the cloud's start
         self.x_mean = centre.copy()
         self.R_mean = so3_exp_batch(centre[None, 3:])[:, :, 0]
         self.cov = np.diag(self.init_std ** 2)
@@ -246,6 +255,7 @@ class ParticleFilter:
         if self.search is not None and self.search.propose(q, observation, self.E, informative,
                                                            self.cov) is not None:
             self._redraw(self.search.result)  # start-up, long gap or divergence: global search (left view)
+            self._window = []
             h = self._project(q)
         if self.gate_follows and informative and len(observation.markers):
             self._gate_markers(q)
@@ -253,6 +263,10 @@ class ParticleFilter:
         if not rejected and (informative or (right is not None and self._informative(right))):
             self.logw = normalize_log_weights(self.logw + self._loglik(h, observation)
                                               + self._loglik_right(q, None, h, right))
+            if len(self._window) < max(SCHEDULE):
+                self._window.append((q, observation, right))
+                if self.window_move and len(self._window) in SCHEDULE and self._move():
+                    h = self._project(q)
         w = np.exp(self.logw)
         ess = effective_sample_size(w)
         # estimate: weighted mean of b, chordal mean of R(w)
@@ -266,6 +280,27 @@ class ParticleFilter:
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est
+
+    def _move(self) -> bool:
+        """Shift the cloud to the mode of the frames since its start when that mode is
+        clearly better (:mod:`graphtrack.estimate.pf.window_move`); True when moved."""
+        w = np.exp(self.logw)
+        x_bar = w @ self.x
+        dx = self.x - x_bar
+        std = np.sqrt(np.clip(np.diag((dx * w[:, None]).T @ dx), 0.0, None))
+        prior = self.search.spread if self.search is not None else self.init_std
+        frames = list(self._window)
+
+        def objective(X):
+            return (sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
+                    - 0.5 * np.sum((X / prior) ** 2, axis=1))
+
+        res = window_mode(objective, x_bar, std, self.init_std / 4, self._move_rng)
+        if not res.gain > MIN_GAIN:
+            return False
+        self.x = self.x + (res.x - x_bar)
+        self.window_moves += 1
+        return True
 
     def _gate_markers(self, q) -> None:
         """The marker gate of this frame from the predicted cloud's covariance

@@ -1,0 +1,90 @@
+"""The particle filter's window move (graphtrack/estimate/pf/window_move.py)."""
+import numpy as np
+
+from graphtrack.estimate.particle_filter import ParticleFilter
+from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, window_mode
+from graphtrack.io.frame import Frame
+from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
+
+SCENE = make_scene()
+Q = joint_trajectory(40)
+
+
+def quadratic(mode, scale):
+    """J(x) = -1/2 sum(((x - mode) / scale)^2): its mode and every gain are known by hand."""
+    mode, scale = np.asarray(mode, float), np.asarray(scale, float)
+    return lambda X: -0.5 * np.sum(((np.atleast_2d(X) - mode) / scale) ** 2, axis=1)
+
+
+def test_the_search_finds_a_mode_several_cloud_spreads_away():
+    scale = np.array([1e-3, 1e-3, 4e-3, 0.01, 0.01, 0.01])
+    mode = np.array([0.0, 0.0, 3e-3, 0.0, 0.0, 0.0])           # 3 mm along z, a flat-ish axis
+    J = quadratic(mode, scale)
+    res = window_mode(J, np.zeros(6), cloud_std=np.full(6, 1e-4), floor=np.array([1e-3] * 3 + [7e-3] * 3),
+                      rng=np.random.default_rng(0))
+    # J(0) = -1/2 (3/4)^2 = -0.28125 by hand; the mode scores 0
+    assert abs(res.x[2] - 3e-3) < 0.6e-3
+    assert 0.2 < res.gain <= 0.28125 + 1e-12
+
+
+def test_a_cloud_at_the_mode_gains_nothing():
+    scale = np.full(6, 1e-3)
+    res = window_mode(quadratic(np.zeros(6), scale), np.zeros(6), np.full(6, 1e-4), np.full(6, 1e-3),
+                      np.random.default_rng(1))
+    assert res.gain == 0.0
+    np.testing.assert_array_equal(res.x, np.zeros(6))
+
+
+def _frames(E, n, rng):
+    out = []
+    for t in range(n):
+        obs = observe(SCENE, Q[t], E, rng, marker_model="point", pixel_noise=0.3, outliers=0.0)
+        out.append((Frame(t, t / 30.0, None, Q[t, :6], Q[t, 6]), obs.observation("line-intensities", True)))
+    return out
+
+
+def test_the_cloud_is_shifted_whole_to_a_clearly_better_mode():
+    """A cloud started 3 mm off the true E, too narrow to reach it by resampling, is moved
+    onto it after SCHEDULE[0] frames; its particles keep their offsets from the mean."""
+    x_true = np.r_[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    frames = _frames(SCENE.true_E(x_true), SCHEDULE[0], np.random.default_rng(0))
+    pf = ParticleFilter(SCENE.ctx, particles=300, seed=0, search=False, window_move=True,
+                        init_std_b=2e-4, init_std_w=1e-3)
+    pf.reset(np.r_[0.0, 3e-3, 0.0, 0.0, 0.0, 0.0])
+    for fr, obs in frames[:-1]:
+        pf.step(fr, obs)
+    seen = []
+    original = pf._move
+
+    def move():
+        before = pf.x.copy()
+        moved = original()
+        seen.append((moved, pf.x - before))
+        return moved
+
+    pf._move = move
+    est = pf.step(*frames[-1])
+    assert [m for m, _ in seen] == [True] and pf.window_moves == 1
+    shift = seen[0][1]
+    np.testing.assert_allclose(shift, np.broadcast_to(shift[0], shift.shape), atol=1e-12)   # rigid
+    assert np.linalg.norm(est.E[:3, 3] - SCENE.true_E(x_true)[:3, 3]) < 1e-3
+
+
+def test_no_move_without_a_clear_gain():
+    x_true = np.zeros(6)
+    frames = _frames(SCENE.true_E(x_true), SCHEDULE[0], np.random.default_rng(0))
+    pf = ParticleFilter(SCENE.ctx, particles=300, seed=0, search=False, init_std_b=2e-4, init_std_w=1e-3)
+    pf.reset(x_true)
+    for fr, obs in frames:
+        pf.step(fr, obs)
+    assert pf.window_moves == 0
+
+
+def test_switched_off_it_leaves_the_filter_as_it_was():
+    frames = _frames(SCENE.true_E(np.zeros(6)), SCHEDULE[0], np.random.default_rng(0))
+    runs = []
+    for on in (True, False):
+        pf = ParticleFilter(SCENE.ctx, particles=200, seed=0, search=False, window_move=on)
+        runs.append([pf.step(fr, obs).E for fr, obs in frames[:-1]])
+    np.testing.assert_array_equal(np.array(runs[0]), np.array(runs[1]))   # before the schedule: the same draws
+    assert MIN_GAIN == 3.0
