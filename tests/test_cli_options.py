@@ -115,5 +115,7 @@ def test_estimator_keywords():
     assert EstimatorOptions(particles=7, seed=2).keywords("pf") == {"particles": 7, "seed": 2, "search": True}
     assert EstimatorOptions(lag=2.0).keywords("smoother") == {"lag": 2.0, "smoother": "isam2", "search": True}
     assert EstimatorOptions(search=False).keywords("pf")["search"] is False
+    assert EstimatorOptions(search=False).keywords("pf")["window_move"] is False   # the filter of before
+    assert "window_move" not in EstimatorOptions(search=False).keywords("smoother")
     assert EstimatorOptions(edge_bias=False).keywords("batch") == {"edge_bias": False}
     assert EstimatorOptions().keywords("kinematics") == {}

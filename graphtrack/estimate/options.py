@@ -31,8 +31,9 @@ class EstimatorOptions:
     (off for edges known to be unbiased); tuned: further constructor keywords of
     the chosen estimator (e.g. a tuned set of its constants), passed as they are;
     search: the pf's and the smoother's global start-up search, divergence monitor
-    and re-initialisation (:mod:`graphtrack.estimate.reinit`; off: the local
-    start-up of before, for comparisons)."""
+    and re-initialisation (:mod:`graphtrack.estimate.reinit`) and the pf's window
+    move (:mod:`graphtrack.estimate.pf.window_move`); off: the local start-up of
+    before, for comparisons."""
 
     particles: int = PARTICLES
     seed: int = 0
@@ -61,6 +62,8 @@ class EstimatorOptions:
             kw = {"lag": self.lag, "smoother": self.smoother}
         if estimator in ("pf", "smoother"):
             kw["search"] = self.search
+        if estimator == "pf" and not self.search:
+            kw["window_move"] = False    # --no-search: the filter as it was before the search
         if estimator in ("smoother", "batch") and not self.edge_bias:
             kw["edge_bias"] = False
         return {**kw, **self.tuned}
