@@ -11,7 +11,8 @@ Q = joint_trajectory(40)
 
 
 def quadratic(mode, scale):
-    """J(x) = -1/2 sum(((x - mode) / scale)^2): its mode and every gain are known by hand."""
+    """log-likelihood -1/2 sum(((x - mode) / scale)^2): with a flat prior (spread 1e9) its
+    mode and every gain are known by hand."""
     mode, scale = np.asarray(mode, float), np.asarray(scale, float)
     return lambda X: -0.5 * np.sum(((np.atleast_2d(X) - mode) / scale) ** 2, axis=1)
 
@@ -21,7 +22,7 @@ def test_the_search_finds_a_mode_several_cloud_spreads_away():
     mode = np.array([0.0, 0.0, 3e-3, 0.0, 0.0, 0.0])           # 3 mm along z, a flat-ish axis
     J = quadratic(mode, scale)
     res = window_mode(J, np.zeros(6), cloud_std=np.full(6, 1e-4), floor=np.array([1e-3] * 3 + [7e-3] * 3),
-                      rng=np.random.default_rng(0))
+                      prior_spread=np.full(6, 1e9), rng=np.random.default_rng(0))
     # J(0) = -1/2 (3/4)^2 = -0.28125 by hand; the mode scores 0
     assert abs(res.x[2] - 3e-3) < 0.6e-3
     assert 0.2 < res.gain <= 0.28125 + 1e-12
@@ -30,7 +31,7 @@ def test_the_search_finds_a_mode_several_cloud_spreads_away():
 def test_a_cloud_at_the_mode_gains_nothing():
     scale = np.full(6, 1e-3)
     res = window_mode(quadratic(np.zeros(6), scale), np.zeros(6), np.full(6, 1e-4), np.full(6, 1e-3),
-                      np.random.default_rng(1))
+                      np.full(6, 1e9), np.random.default_rng(1))
     assert res.gain == 0.0
     np.testing.assert_array_equal(res.x, np.zeros(6))
 

@@ -291,11 +291,10 @@ class ParticleFilter:
         prior = self.search.spread if self.search is not None else self.init_std
         frames = list(self._window)
 
-        def objective(X):
-            return (sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
-                    - 0.5 * np.sum((X / prior) ** 2, axis=1))
+        def loglik(X):
+            return sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
 
-        res = window_mode(objective, x_bar, std, self.init_std / 4, self._move_rng)
+        res = window_mode(loglik, x_bar, std, self.init_std / 4, prior, self._move_rng)
         if not res.gain > MIN_GAIN:
             return False
         self.x = self.x + (res.x - x_bar)

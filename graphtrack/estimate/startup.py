@@ -148,26 +148,30 @@ _LIKELIHOOD_OPTIONS = dict(gamma_rho=om.GAMMA_RHO, gamma_theta=om.GAMMA_THETA, u
 
 def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.Generator,
                   n: int = 2048, sigmas=SIGMAS, elite: float = 0.03, inflate: float = 1.5,
-                  prior_centre: np.ndarray | None = None) -> SearchResult:
+                  prior_centre: np.ndarray | None = None, prior_spread: np.ndarray | None = None,
+                  incumbent: np.ndarray | None = None) -> SearchResult:
     """Annealed cross-entropy search (module doc).
 
     score(x, sigma) -> (n,) log-likelihood of hypotheses x (n, 6) at pixel sigma;
     centre (6,), spread (6,): the first stage draws from N(centre, diag(spread^2));
-    the prior term of J is N(prior_centre, diag(spread^2)) (default: centre; the
-    re-initialisations search around the current estimate under the hand-eye prior).
+    the prior term of J is N(prior_centre, diag(prior_spread^2)) (defaults: centre and
+    spread; the re-initialisations search around the current estimate under the
+    hand-eye prior); incumbent: a hypothesis scored in the first stage too (later
+    stages re-score the best so far).
     """
     mu = np.asarray(centre, float).copy()
     centre = mu.copy() if prior_centre is None else np.asarray(prior_centre, float)
     spread = np.asarray(spread, float)
+    prior_spread = spread if prior_spread is None else np.asarray(prior_spread, float)
     L = np.diag(spread)
     n_elite = max(8, int(round(elite * n)))
-    best = None
+    best = None if incumbent is None else np.asarray(incumbent, float)
     for s, sigma in enumerate(sigmas):
         x = mu + rng.standard_normal((n, 6)) @ L.T
         if best is not None:
             x[0] = best                      # the incumbent is re-scored at this sigma
         ll = np.asarray(score(x, sigma), float)
-        J = ll - 0.5 * np.sum(((x - centre) / spread) ** 2, axis=1)
+        J = ll - 0.5 * np.sum(((x - centre) / prior_spread) ** 2, axis=1)
         J = np.where(np.isfinite(J), J, -np.inf)
         order = np.argsort(-J)[:n_elite]
         top = x[order]

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graphtrack.estimate.startup import global_search
+
 #: nats: the window's mode must beat the cloud's mean by this much to move the cloud
 MIN_GAIN = 3.0
 #: frames used since a (re)start after which the cloud is moved (as the smoother's challenge)
@@ -44,28 +46,17 @@ class WindowMode:
     gain: float
 
 
-def window_mode(objective, x_bar: np.ndarray, cloud_std: np.ndarray, floor: np.ndarray,
-                rng: np.random.Generator, n: int = 512, stages: int = 3,
+def window_mode(loglik, x_bar: np.ndarray, cloud_std: np.ndarray, floor: np.ndarray,
+                prior_spread: np.ndarray, rng: np.random.Generator, n: int = 512, stages: int = 3,
                 elite: float = 0.03) -> WindowMode:
-    """The mode of ``objective`` (x (m, 6) -> J (m,)) near x_bar (module doc)."""
+    """The mode of J (module doc) near x_bar: loglik(x (m, 6)) -> (m,) the frames' summed
+    log-likelihood; prior_spread (6,): s. The search is
+    :func:`graphtrack.estimate.startup.global_search` at one pixel sigma, the cloud's mean
+    its incumbent from the first stage."""
     x_bar = np.asarray(x_bar, float)
+    prior_spread = np.asarray(prior_spread, float)
     sd = np.maximum(3.0 * np.asarray(cloud_std, float), np.asarray(floor, float))
-    L = np.diag(sd)
-    mu, best = x_bar.copy(), x_bar.copy()
-    n_elite = max(8, int(round(elite * n)))
-    J0 = float(objective(x_bar[None])[0])
-    J_best = J0
-    for s in range(stages):
-        x = mu + rng.standard_normal((n, 6)) @ L.T
-        x[0] = best                                  # the incumbent competes at every stage
-        J = np.asarray(objective(x), float)
-        J = np.where(np.isfinite(J), J, -np.inf)
-        order = np.argsort(-J)[:n_elite]
-        if J[order[0]] > J_best:
-            best, J_best = x[order[0]].copy(), float(J[order[0]])
-        top = x[order]
-        mu = top.mean(axis=0)
-        if s < stages - 1:
-            C = np.cov(top.T) + np.diag((1e-3 * sd) ** 2)
-            L = np.linalg.cholesky(1.5 ** 2 * 0.5 * (C + C.T))
-    return WindowMode(best, J_best - J0 if np.isfinite(J0) else np.inf)
+    J0 = float(loglik(x_bar[None])[0] - 0.5 * np.sum((x_bar / prior_spread) ** 2))
+    res = global_search(lambda x, _sigma: loglik(x), x_bar, sd, rng, n=n, sigmas=(None,) * stages,
+                        elite=elite, prior_centre=np.zeros(6), prior_spread=prior_spread, incumbent=x_bar)
+    return WindowMode(res.x, res.score - J0 if np.isfinite(J0) else np.inf)
