@@ -92,3 +92,23 @@ def test_groups_make_samples_span_two_endpoint_discs():
     rho = float(n @ (np.round(ends[0]) + np.round(ends[1])) / 2)
     spanning, _ = best_line(pts, rng=0, groups=groups)
     assert abs(line_difference(spanning[0], spanning[1], rho, theta)[1]) < 0.02
+
+
+def test_tls_matches_the_moment_form_and_has_no_line_without_points():
+    """fit_line_tls (scalar path) equals tls_from_moments on the centred moments, and an
+    empty, weightless or non-finite set gives (nan, nan) rather than an exception."""
+    from graphtrack.detect.ransac import tls_from_moments
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        p = rng.normal(size=(20, 2)) * [50.0, 3.0] @ np.array([[0.6, 0.8], [-0.8, 0.6]]) + rng.normal(size=2) * 100
+        c = p.mean(0)
+        q = p - c
+        x, y = q[:, 0], q[:, 1]
+        w = np.ones(len(p))
+        rho, theta = tls_from_moments(w.sum(), w @ x, w @ y, w @ (x * x), w @ (x * y), w @ (y * y))
+        rho = rho + np.cos(theta) * c[0] + np.sin(theta) * c[1]
+        np.testing.assert_allclose(fit_line_tls(p), [rho, theta], rtol=0, atol=1e-9)
+    with np.errstate(all="ignore"):
+        for bad in (np.zeros((0, 2)), np.array([[np.nan, 1.0], [2.0, 3.0]])):
+            assert np.all(np.isnan(fit_line_tls(bad)))
+        assert np.all(np.isnan(fit_line_tls(np.array([[0.0, 0.0], [1.0, 1.0]]), np.zeros(2))))

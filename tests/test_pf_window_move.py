@@ -89,3 +89,10 @@ def test_switched_off_it_leaves_the_filter_as_it_was():
         runs.append([pf.step(fr, obs).E for fr, obs in frames[:-1]])
     np.testing.assert_array_equal(np.array(runs[0]), np.array(runs[1]))   # before the schedule: the same draws
     assert MIN_GAIN == 3.0
+
+
+def test_nothing_scored_means_no_move():
+    res = window_mode(lambda X: np.full(len(np.atleast_2d(X)), -np.inf), np.zeros(6), np.full(6, 1e-4),
+                      np.full(6, 1e-3), np.full(6, 1e-2), np.random.default_rng(0))
+    assert res.gain == -np.inf and not res.gain > MIN_GAIN
+    np.testing.assert_array_equal(res.x, np.zeros(6))

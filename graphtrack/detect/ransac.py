@@ -63,13 +63,18 @@ def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     q = p - c
     x, y = q[:, 0], q[:, 1]
     n = float(w.sum())
+    if not n > 0 or not np.all(np.isfinite(c)):
+        return np.array([np.nan, np.nan])          # no points, no weight, or a non-finite point
     # tls_from_moments and canonical for one line, in scalars (numpy's 0-d call overhead
-    # was most of the sub-pixel refinement's fit)
+    # was most of the sub-pixel refinement's fit); np.arctan2, not math.atan2: the two
+    # differ in the last bit on some CPUs, and the line stays the one tls_from_moments gives
     mx, my = float(w @ x) / n, float(w @ y) / n
     cxx = float(w @ (x * x)) / n - mx * mx
     cxy = float(w @ (x * y)) / n - mx * my
     cyy = float(w @ (y * y)) / n - my * my
-    theta = 0.5 * math.atan2(2.0 * cxy, cxx - cyy) + 0.5 * math.pi
+    theta = 0.5 * float(np.arctan2(2.0 * cxy, cxx - cyy)) + 0.5 * math.pi
+    if not math.isfinite(theta):
+        return np.array([np.nan, np.nan])
     rho = math.cos(theta) * mx + math.sin(theta) * my
     k = math.floor(theta / math.pi)
     theta -= k * math.pi

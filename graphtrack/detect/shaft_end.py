@@ -205,6 +205,8 @@ def _centre_crossing(sample, o, d, s, tc, h, i: int, level: float, k: int, rows)
     lo, hi = max(0, i - k), min(len(s), i + k + 1)
     n = np.array([-d[1], d[0]])
     taus = np.asarray(rows, float)
+    if not len(taus):
+        return None
     pts = o + s[lo:hi, None, None] * d + (tc[lo:hi, None] + taus[None, :] * h[lo:hi, None])[..., None] * n
     g = sample(pts.reshape(-1, 2)).reshape(hi - lo, len(taus))      # one read for all rows
     found = []

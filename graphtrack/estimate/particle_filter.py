@@ -24,8 +24,9 @@ constrain (docs/decisions/pf-kernel-shrinkage.md).
 Estimate: b = sum w_n b_n, R the chordal L2 mean of R(w_n), E_t = [R b; 0 1] . E_0;
 ``Estimate.std``/``cov``: the weighted covariance of x. With ``search`` the cloud is
 started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`);
-with ``window_move``, 8 and 16 frames after each start it is shifted whole to the mode
-of the frames since, when that mode is clearly better (:mod:`graphtrack.estimate.pf.window_move`).
+with ``window_move``, after the 8th and 16th frame it weighs since each start it is
+shifted whole to the mode of those frames, when that mode is clearly better
+(:mod:`graphtrack.estimate.pf.window_move`).
 
 Defaults (the dVRK tracker's motion model, a wider initial spread, roughening 0.5)
 and their measurements: docs/decisions/pf-initial-spread-and-roughening.md,
@@ -66,8 +67,10 @@ class ParticleFilter:
     in the likelihood and the search; marker_gamma (1/px), marker_gate (px; times
     gate_scale, the full-size pixels per detection pixel, which the tracking
     pipeline sets to 1 / its detection scale, as for the smoother); window_move:
-    shift the cloud to the mode of the frames since its start, 8 and 16 frames after
-    it (:mod:`graphtrack.estimate.pf.window_move`; off: the filter without it).
+    shift the cloud to the mode of the frames since its start after the 8th and 16th
+    frame it weighs (:mod:`graphtrack.estimate.pf.window_move`; independent of
+    ``search``, which only supplies its prior spread: ``EstimatorOptions(search=False)``,
+    the CLI's ``--no-search``, turns both off).
     Each Observation carries its own ``model``, which is what is scored.
     """
 
@@ -217,19 +220,23 @@ class ParticleFilter:
         with the right image's observation ``right`` (stereo context) the sum of both
         images' terms (:mod:`graphtrack.estimate.stereo`)."""
         h = self._project(q, x)
-        return self._loglik(h, observation) + self._loglik_right(q, x, h, right)
+        index = None if x is None else 0     # a batch of hypotheses: pair markers at its first
+        return self._loglik(h, observation, index=index) + self._loglik_right(q, x, h, right, index)
 
-    def _loglik_right(self, q, x, h: Hypotheses, right) -> np.ndarray | float:
+    def _loglik_right(self, q, x, h: Hypotheses, right, index: int | None = None) -> np.ndarray | float:
         """The right image's term log P(z_right | right_T_left . E(x_n)), 0 without one."""
         if right is None or not self.ctx.stereo or not self._informative(right):
             return 0.0
-        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right)
+        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right, index)
 
     def _informative(self, observation) -> bool:
         return observation is not None and (observation.has_shaft
                                             or (self.use_markers and len(observation.markers) > 0))
 
-    def _loglik(self, h: Hypotheses, observation, buffers: dict | None = None) -> np.ndarray:
+    def _loglik(self, h: Hypotheses, observation, buffers: dict | None = None,
+                index: int | None = None) -> np.ndarray:
+        """log P(z | E) of projected hypotheses h; ``index``: the hypothesis whose marker
+        pairing breaks ties (None: the cloud's best particle when h is the cloud)."""
         n = len(h.valid)
         ll = np.zeros(n)
         if observation is None:
@@ -241,7 +248,8 @@ class ParticleFilter:
         if self.use_markers and len(observation.markers):
             ll += om.marker_loglik_mn(h.u, h.v, h.visible, observation.markers,
                                       self.marker_gamma, self.marker_gate,
-                                      estimate_index=int(np.argmax(self.logw)) if n == self.N else 0,
+                                      estimate_index=(index if index is not None else
+                                                      int(np.argmax(self.logw)) if n == self.N else 0),
                                       **self.marker_options)
         return ll + om.shaft_end_loglik(h.end_u, h.end_v, observation)
 
@@ -295,8 +303,8 @@ class ParticleFilter:
             return sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
 
         res = window_mode(loglik, x_bar, std, self.init_std / 4, prior, self._move_rng)
-        if not res.gain > MIN_GAIN:
-            return False
+        if not res.gain > MIN_GAIN or (self.search is not None and self.search.outside(res.x)):
+            return False          # not clearly better, or outside the prior gate the search keeps
         self.x = self.x + (res.x - x_bar)
         self.window_moves += 1
         return True

@@ -14,9 +14,10 @@ left camera-frame corrections of the reference E_ref: E(x) = Exp(x) . E_ref
 parameterisation). Stage s = 0 .. S-1 draws ``n`` hypotheses from
 N(mu_s, Sigma_s) (mu_0 = centre, Sigma_0 = diag(spread^2)), scores each with
 
-    J(x) = sum_f log P_s(z_f | E(x)) - 1/2 |(x - centre) / spread|^2
+    J(x) = sum_f log P_s(z_f | E(x)) - 1/2 |(x - prior_centre) / prior_spread|^2
 
-(the observation models of :mod:`graphtrack.estimate.observation_models`,
+(prior_centre and prior_spread default to the first stage's centre and spread;
+the observation models of :mod:`graphtrack.estimate.observation_models`,
 the particle filter's vectorised projection and likelihood, :class:`Scorer`), with the pixel sigma of stage s: ``sigmas`` px, coarse to fine, so
 that a hypothesis 30 px off still sees the data's pull while a 2 px sigma
 would put all its pixels at the outlier floor), keeps the best ``elite``

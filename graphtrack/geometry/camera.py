@@ -96,7 +96,7 @@ class Camera:
         uv = np.asarray(uv, float)
         fx, fy, cx, cy = float(self.K[0, 0]), float(self.K[1, 1]), float(self.K[0, 2]), float(self.K[1, 2])
         xd, yd = self._distort_xy((uv[..., 0] - cx) / fx, (uv[..., 1] - cy) / fy)
-        out = np.empty(uv.shape)
+        out = np.empty(uv.shape[:-1] + (2,))
         out[..., 0] = fx * xd + cx
         out[..., 1] = fy * yd + cy
         return out

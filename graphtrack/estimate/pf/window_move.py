@@ -6,21 +6,25 @@ frames is
 
     p(x | z_1..z_k)  ~  N(x; 0, diag(s^2)) . prod_i P(z_i | E(x))
 
-(s the hand-eye prior's spread, the search's). Along a direction the images barely see
-(the slide of the tool along its shaft, the depth) each frame adds well under a nat,
-and a cloud that has shrunk across that valley climbs it only as fast as its spread
-lets resampling move it (docs/decisions/robustness-benchmark.md, traced on the tuning
-recordings): the evidence is there, the particles are not.
+(s the hand-eye prior's spread: the start-up search's, or the filter's initial spread
+without a search). Along a direction the images barely see (the slide of the tool
+along its shaft, the depth) each frame adds well under a nat, and a cloud that has
+shrunk across that valley climbs it only as fast as its spread lets resampling move it
+(docs/decisions/robustness-benchmark.md, traced on the tuning recordings): the
+evidence is there, the particles are not.
 
-The move, ``SCHEDULE`` frames (8 and 16) after each (re)start: a cross-entropy search of
+The move, after the ``SCHEDULE``-th (8th and 16th) frame the filter has weighed since
+each (re)start (a frame with detections, not an outlier frame): a cross-entropy search
+(:func:`graphtrack.estimate.startup.global_search`, one pixel sigma) of
 
     J(x) = sum_i log P(z_i | E(x)) - 1/2 |x / s|^2
 
-over the frames since the start, from N(x_bar, diag(sd^2)), sd = max(3 std_cloud,
-``floor``) per axis (x_bar, std_cloud: the cloud's weighted mean and spread), three
-stages of ``n`` hypotheses, the elite's mean and covariance carried on. When the best
-x* beats the cloud's mean by more than ``MIN_GAIN`` nats (Kass & Raftery's "strong"
-evidence, 2 ln B > 6) every particle is shifted by x* - x_bar: the cloud keeps its
+over those frames, from N(x_bar, diag(sd^2)), sd = max(3 std_cloud, ``floor``) per axis
+(x_bar, std_cloud: the cloud's weighted mean and spread), three stages of ``n``
+hypotheses, the cloud's mean the incumbent. When the best x* beats the mean by
+J(x*) - J(x_bar) > ``MIN_GAIN`` = 3 nats (the log posterior ratio of the two points;
+3 is where Kass & Raftery's scale puts "strong" evidence, 2 ln B > 6) and lies inside
+the search's prior gate, every particle is shifted by x* - x_bar: the cloud keeps its
 shape and weights, only its place changes. Nothing here reads anything but the
 frames the filter has already used.
 """
@@ -59,4 +63,6 @@ def window_mode(loglik, x_bar: np.ndarray, cloud_std: np.ndarray, floor: np.ndar
     J0 = float(loglik(x_bar[None])[0] - 0.5 * np.sum((x_bar / prior_spread) ** 2))
     res = global_search(lambda x, _sigma: loglik(x), x_bar, sd, rng, n=n, sigmas=(None,) * stages,
                         elite=elite, prior_centre=np.zeros(6), prior_spread=prior_spread, incumbent=x_bar)
+    if not np.isfinite(res.score):
+        return WindowMode(x_bar, -np.inf)            # nothing scored: no mode, no move
     return WindowMode(res.x, res.score - J0 if np.isfinite(J0) else np.inf)
