@@ -128,6 +128,14 @@ def _band(lines: np.ndarray, o: np.ndarray, d: np.ndarray, s: np.ndarray):
     return t.mean(1), 0.5 * np.abs(t[:, 0] - t[:, 1])
 
 
+def _band_points(o, d, s, tc, h, taus) -> np.ndarray:
+    """(len(s), len(taus), 2) px: the points o + s d + (t_c(s) + tau h(s)) n of the band,
+    for each coordinate s along it and each tau (half-widths from its mid-line)."""
+    n = np.array([-d[1], d[0]])
+    offs = np.asarray(tc)[:, None] + np.asarray(taus, float)[None, :] * np.asarray(h)[:, None]
+    return o + np.asarray(s)[:, None, None] * d + offs[..., None] * n
+
+
 def _medians(g: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Median of g over the k samples before and after each index (NaN near the ends)."""
     n = len(g)
@@ -172,10 +180,8 @@ def _wrist_apart(sample, o, d, s, tc, h, i: int, k: int, cfg: ShaftEndConfig) ->
     of the two sides; medians over the k samples after i. inf when nothing beside the
     band is in the image; 0 when what follows is coloured (saturation (max - min) / max
     of its BGR above ``max_saturation``): the wrist is bare metal."""
-    n = np.array([-d[1], d[0]])
     j = slice(i + 1, min(len(s), i + k + 1))
-    taus = np.array([0.0, -cfg.outside, cfg.outside])
-    pts = o + s[j, None, None] * d + (tc[j, None] + taus[None, :] * h[j, None])[..., None] * n   # (k, 3, 2)
+    pts = _band_points(o, d, s[j], tc[j], h[j], (0.0, -cfg.outside, cfg.outside))   # (k, 3, 2)
     c = sample.colour(pts.reshape(-1, 2)).reshape(pts.shape[0], 3, -1)    # one read for the three rows
 
     def median_colour(r):
@@ -203,11 +209,10 @@ def _centre_crossing(sample, o, d, s, tc, h, i: int, level: float, k: int, rows)
     """The median over the rows t_c + tau h (tau in ``rows``) of where each crosses
     ``level`` nearest sample i (within k samples), as a sample index; None if none does."""
     lo, hi = max(0, i - k), min(len(s), i + k + 1)
-    n = np.array([-d[1], d[0]])
     taus = np.asarray(rows, float)
     if not len(taus):
         return None
-    pts = o + s[lo:hi, None, None] * d + (tc[lo:hi, None] + taus[None, :] * h[lo:hi, None])[..., None] * n
+    pts = _band_points(o, d, s[lo:hi], tc[lo:hi], h[lo:hi], taus)
     g = sample(pts.reshape(-1, 2)).reshape(hi - lo, len(taus))      # one read for all rows
     found = []
     for r in range(len(taus)):
@@ -251,11 +256,8 @@ def locate(sample, lines: np.ndarray, segments: np.ndarray, distal: np.ndarray,
     tc, h = _band(lines, o, d, s)
     if tc is None or np.median(h) < cfg.min_half_width:
         return None
-    n = np.array([-d[1], d[0]])
-    tau = np.linspace(-cfg.width, cfg.width, cfg.samples)
-    offs = tc[:, None] + tau[None, :] * h[:, None]                          # (S, T)
-    pts = o + s[:, None, None] * d + offs[..., None] * n                    # (S, T, 2)
-    g = np.median(sample(pts.reshape(-1, 2)).reshape(offs.shape), axis=1)  # NaN off the image
+    pts = _band_points(o, d, s, tc, h, np.linspace(-cfg.width, cfg.width, cfg.samples))   # (S, T, 2)
+    g = np.median(sample(pts.reshape(-1, 2)).reshape(pts.shape[:2]), axis=1)  # NaN off the image
     k = max(2, int(round(cfg.window * float(np.median(h)) / cfg.step)))
     before, after = _medians(g, k)
     D = after - before
@@ -275,5 +277,5 @@ def locate(sample, lines: np.ndarray, segments: np.ndarray, distal: np.ndarray,
         return None
     j = int(np.clip(round(x), 0, len(s) - 1))
     sx = s[0] + x * cfg.step
-    point = o + sx * d + tc[j] * n
+    point = o + sx * d + tc[j] * np.array([-d[1], d[0]])
     return ShaftEnd(point, d, float(D[i]))

@@ -278,10 +278,9 @@ class ParticleFilter:
         w = np.exp(self.logw)
         ess = effective_sample_size(w)
         # estimate: weighted mean of b, chordal mean of R(w)
-        self.x_mean = w @ self.x
+        self.x_mean, cov = self._moments(w)
         self.R_mean = project_to_so3((h.R.reshape(9, -1) @ w).reshape(3, 3))
-        dx = self.x - self.x_mean
-        cov = self.cov = (dx * w[:, None]).T @ dx
+        self.cov = cov
         est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,
                        extra={**dict(zip(STD_COLUMNS, map(float, np.sqrt(np.diag(cov))))),
                               "ess": ess, "outlier": float(rejected)})
@@ -289,13 +288,17 @@ class ParticleFilter:
             self.resample(w, cov)
         return est
 
+    def _moments(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The cloud's weighted mean (6,) and covariance (6, 6) of x under weights w."""
+        mean = w @ self.x
+        dx = self.x - mean
+        return mean, (dx * w[:, None]).T @ dx
+
     def _move(self) -> bool:
         """Shift the cloud to the mode of the frames since its start when that mode is
         clearly better (:mod:`graphtrack.estimate.pf.window_move`); True when moved."""
-        w = np.exp(self.logw)
-        x_bar = w @ self.x
-        dx = self.x - x_bar
-        std = np.sqrt(np.clip(np.diag((dx * w[:, None]).T @ dx), 0.0, None))
+        x_bar, cov = self._moments(np.exp(self.logw))
+        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         prior = self.search.spread if self.search is not None else self.init_std
         frames = list(self._window)
 
