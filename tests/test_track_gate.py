@@ -94,3 +94,51 @@ def test_batch_gates_its_detector_like_the_smoother():
         ga, gb = smoother.gate(frame), batch.gate(frame)
         assert (ga is None) == (gb is None)
         assert ga is None or ga.max_offset == pytest.approx(gb.max_offset)
+
+
+def test_gate_along_matches_a_monte_carlo_spread():
+    """gate_along's sigma is the spread along d of the projected point under sampled left
+    corrections (b, w) (exact rotations, pinhole projection): the oracle."""
+    from graphtrack.estimate.gating import gate_along
+    from graphtrack.geometry.se3 import so3_exp_batch
+
+    K = np.array([[800.0, 0, 480], [0, 800.0, 270], [0, 0, 1]])
+    X = np.array([0.01, -0.02, 0.12])
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((6, 6)) * np.r_[[1e-3] * 3, [1e-2] * 3][:, None]
+    cov = A @ A.T
+    d = np.array([0.6, 0.8])
+    s = rng.multivariate_normal(np.zeros(6), cov, 40000)
+    R = so3_exp_batch(s[:, 3:])                    # (3, 3, N)
+    Y = np.einsum("ijn,j->ni", R, X) + s[:, :3]
+    uv = Y[:, :2] / Y[:, 2:] * 800.0
+    spread = np.std(uv @ d)
+    g = gate_along(X, d, K, cov, sigma=0.0, floor=0.0)
+    assert g / 3.0 == pytest.approx(spread, rel=0.05)
+    assert gate_along(X, d, K, cov, sigma=0.0, floor=1e4) == 1e4          # never below the floor
+    assert gate_along(X, d, K, np.zeros((6, 6)), sigma=2.0, floor=0.0) == pytest.approx(6.0)
+
+
+def test_end_gate_follows_the_slide_along_the_shaft(pipe):
+    """The shaft end's gate: inf before the first estimate; the floor when confident; for a
+    2 mm slide along the shaft's axis, 3 x the end's image displacement along the shaft
+    (a finite difference of the projection, hand-built) with the detection noise."""
+    from graphtrack.estimate.observation_models import END_SIGMA
+    from graphtrack.geometry.shaft_end import end_pixel
+    from graphtrack.robot.features import base_features
+    from graphtrack.track.pipeline import END_GATE_MIN_PX
+
+    frame = Frame(0, 0.0, None, Q0[:6], Q0[6])
+    pipe.last_E, pipe.last_cov = pipe.ctx.handeye.copy(), None
+    assert pipe.end_gate(frame) == np.inf
+    pipe.last_cov = np.eye(6) * 1e-14
+    assert pipe.end_gate(frame) == pytest.approx(END_GATE_MIN_PX)
+    F = base_features(pipe.ctx.robot, Q0).transformed(pipe.ctx.handeye)
+    a, r, K = F.shaft_d[0], pipe.ctx.robot.shaft_features[0].radius, pipe.ctx.camera.K
+    pipe.last_cov = np.zeros((6, 6))
+    pipe.last_cov[:3, :3] = (2e-3) ** 2 * np.outer(a, a)
+    p0, d = end_pixel(F.shaft_end[0], a, r, K)
+    p1, _ = end_pixel(F.shaft_end[0] + 1e-6 * a, a, r, K)
+    along = d @ (p1 - p0) / 1e-6 * 2e-3                                 # px per 2 mm
+    assert 3.0 * along > END_GATE_MIN_PX
+    assert pipe.end_gate(frame) == pytest.approx(3.0 * np.hypot(along, END_SIGMA), rel=1e-3)

@@ -1,4 +1,5 @@
-"""Marker association gates that follow the estimate's covariance.
+"""Association gates that follow the estimate's covariance: the markers', and the shaft
+end's along the shaft (:func:`gate_along`).
 
 A marker point X (camera frame, at the current estimate E_t) moves under a left
 correction (b, w) of E as dX = b + w x X = A(X) (b, w), A = [I, -[X]x]; its
@@ -70,3 +71,14 @@ def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate:
     g = n_sigma * np.sqrt(np.max(np.clip(lam, 0.0, None)) + sigma ** 2)
     lo = float(gate) if floor is None else floor * scale
     return float(np.clip(g, lo, max(lo, ceil * scale)))
+
+
+def gate_along(point: np.ndarray, direction: np.ndarray, K: np.ndarray, cov: np.ndarray, sigma: float,
+               floor: float, n_sigma: float = N_SIGMA) -> float:
+    """The gate (px) along a unit image direction d of a camera-frame point's (3,) projection:
+    max(floor, n_sigma sqrt(d^T P d + sigma^2)), P its image covariance under the left (b, w)
+    covariance ``cov`` (:func:`marker_image_covariances`), sigma (px) the detection's own
+    noise along d. The shaft end's gate: only its position along the shaft is scored."""
+    P = marker_image_covariances(np.asarray(point, float)[None], K, cov)[0]
+    d = np.asarray(direction, float)
+    return max(float(floor), n_sigma * float(np.sqrt(max(d @ P @ d, 0.0) + sigma * sigma)))

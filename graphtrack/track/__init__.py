@@ -118,7 +118,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
                 run.skipped.skip(FrameError(frame.index, "nonfinite_estimate",
                                             "the estimator returned a non-finite pose"), quiet)
-                pipe.last_E, pipe.last_std = ctx.handeye.copy(), None
+                pipe.last_E, pipe.last_std, pipe.last_cov = ctx.handeye.copy(), None, None
                 continue
             t = time.perf_counter()
             tip = tip_pixel(ctx, frame.q, est.E)

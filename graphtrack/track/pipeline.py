@@ -18,7 +18,9 @@ from graphtrack.detect import make_detector, observe, shaft_end
 from graphtrack.detect.options import MAX_DETECT_WIDTH, OBSERVATION, DetectionOptions
 from graphtrack.estimate import estimator_class, make_estimator
 from graphtrack.estimate.options import EstimatorOptions
-from graphtrack.geometry.shaft_end import end_pixel
+from graphtrack.estimate.gating import gate_along
+from graphtrack.estimate.observation_models import END_SIGMA
+from graphtrack.geometry.shaft_end import end_pixel, front_point
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.frame import Frame
 from graphtrack.robot.features import base_features, shaft_lines
@@ -99,6 +101,7 @@ class Pipeline:
         self.estimator = make_estimator(options.estimator, ctx, **kw)
         self.last_E = ctx.handeye.copy()
         self.last_std = None          # nothing known before the first estimate: widest gate
+        self.last_cov = None          # its (b, w) covariance: the end gate
         self._predicted = None        # (frame, E, camera-frame features) of _predicted_features
         self._end_gate = float("inf")  # px, this frame's end_gate
         self.rng = np.random.default_rng(options.seed)
@@ -201,15 +204,17 @@ class Pipeline:
 
     def end_gate(self, frame: Frame) -> float:
         """px: how far along the shaft's image a detected end may lie from the predicted
-        one, max(``END_GATE_MIN_PX``, 3 s), s = f (|std_b| / Z + |std_w|) at full size:
-        :meth:`gate`'s spread over all three axes, as the slide may lie along any (inf
-        before the first estimate, or without a covariance)."""
-        std = self.last_std
-        if std is None or not np.all(np.isfinite(std)):
+        one: max(``END_GATE_MIN_PX``, 3 sqrt(d^T P d + s^2)), P the image covariance of
+        the predicted end's front point under the last estimate's (b, w) covariance, d
+        the shaft's image direction there, s the end's detection noise (``END_SIGMA``)
+        (:func:`graphtrack.estimate.gating.gate_along`); inf before the first estimate,
+        without a covariance, or with the end behind the camera."""
+        cov, pred = self.last_cov, self.predicted_end(frame)
+        if cov is None or pred is None or not np.all(np.isfinite(cov)):
             return float("inf")
-        z = self._predicted_features(frame).shaft_p0[0, 2]
-        s = self.ctx.camera.K[0, 0] * (np.linalg.norm(std[:3]) / max(z, 1e-3) + np.linalg.norm(std[3:]))
-        return max(END_GATE_MIN_PX, 3.0 * s)
+        feats = self._predicted_features(frame)
+        P3 = front_point(feats.shaft_end[0], feats.shaft_d[0], self.ctx.robot.shaft_features[0].radius)
+        return gate_along(P3, pred[1], self.ctx.camera.K, cov, END_SIGMA, END_GATE_MIN_PX)
 
     def _end(self, image, camera, detection, predicted) -> np.ndarray | None:
         """The shaft end (1, 4) found on ``image`` (:mod:`graphtrack.detect.shaft_end`)
@@ -244,6 +249,7 @@ class Pipeline:
         ms["estimate"] = 1e3 * (time.perf_counter() - t)
         self.last_E = estimate.E
         self.last_std = None if estimate.std is None else np.asarray(estimate.std, float)
+        self.last_cov = None if estimate.cov is None else np.asarray(estimate.cov, float)
         return estimate, detection, observation, ms
 
 
