@@ -409,3 +409,32 @@ def test_a_candidate_is_confirmed_only_once_the_tool_has_moved():
     assert n == policy.confirm
     # adopted: the search re-run on that one frame, good to a few mm (the lock was 8 mm off)
     assert np.linalg.norm(policy.result.x[:3] - x_true[:3]) < 6e-3
+
+
+def test_a_candidate_the_locks_own_frames_contradict_is_vetoed():
+    """The lock's evidence (the latest frames it explained): a candidate 8 mm off loses them
+    by far more than the margin and is vetoed; the true E against that 8 mm lock is not;
+    without evidence (a fresh policy) nothing is vetoed; a gap and an adoption forget it."""
+    world = make_world(3, 3.0, 1.5)
+    x_true = matrix_to_bw(world.E_true @ invert(world.ctx.handeye))
+    policy = SearchInit(world.ctx, seed=0, gap=30)
+    far = x_true + np.r_[0.008, 0, 0, 0, 0, 0]
+    assert not policy._contradicts_evidence(far, x_true)                # no evidence yet
+    for t in range(1 + policy.lock_frames):
+        qt, _ = _frame(world, t)
+        policy.propose(qt, _obs(world, qt, world.E_true, t), world.E_true, True)
+    assert policy.locked and len(policy.evidence) > 0
+    # the oracle: the frames' own likelihoods, summed by hand
+    ll = sum(policy.scorer(q, o, np.stack([far, x_true])) for q, o in policy.evidence)
+    assert ll[0] - ll[1] < -len(policy.evidence) * policy.margin
+    assert policy._contradicts_evidence(far, x_true)
+    assert not policy._contradicts_evidence(x_true, far)          # the evidence favours it: no veto
+    assert not policy._contradicts_evidence(x_true, x_true)
+    for t in range(30):                                                  # a gap: the lock is stale
+        qt, _ = _frame(world, 20 + t)
+        policy.propose(qt, Observation(MODEL), world.E_true, False)
+    qt, _ = _frame(world, 50)
+    policy.propose(qt, _obs(world, qt, world.E_true, 50), world.E_true, True)
+    assert len(policy.evidence) <= 1 and all(q is qt for q, _ in policy.evidence)   # none from before
+    policy._adopt(SearchResult(x_true, np.eye(6) * 1e-6, 0.0, 0.0))
+    assert len(policy.evidence) == 0

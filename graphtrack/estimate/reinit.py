@@ -49,6 +49,12 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   edges of |d rho| + |d theta| times the half image diagonal; default twice
   the likelihood's outlier floor, 2 * 3 * 2 px, beyond which a static occluder's
   edges no longer count for the candidate), or ``gap`` frames have passed.
+  A confirmed candidate is still refused when the lock's *evidence* contradicts it:
+  the latest ``EVIDENCE`` frames the estimate explained (misfit <= ``lock_threshold``;
+  none kept across a gap or an adoption) score it below the current estimate by
+  more than ``margin`` nats per frame. E is nearly constant, so a mode that the
+  frames before a run of outlier frames rule out is fitted to an occluder
+  re-emerging with the tool, not to the tool (docs/decisions/lock-evidence.md).
 - Innovation gate: while *locked* (``lock_frames`` consecutive frames the
   estimator used were explained, misfit <= ``lock_threshold``; before a lock, a
   frame with a misfit between that and the threshold neither extends nor ends
@@ -114,6 +120,8 @@ LOCK_FLOOR = 0.1
 COARSE_SIGMA = SIGMAS[1]
 #: frames used that the window challenge keeps (it draws ``window`` of them)
 HISTORY = 16
+#: explained frames kept as the lock's evidence, which a candidate must not contradict
+EVIDENCE = 5
 
 
 def prior_distance(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float) -> float:
@@ -184,6 +192,8 @@ class SearchInit:
         self.history: deque = deque(maxlen=HISTORY)   # (q, observation, loglik at the estimate) of frames used
         self.challenges = self.switches = 0
         self.used = 0                # frames used since the last start (the challenge's schedule)
+        self.evidence: deque = deque(maxlen=EVIDENCE)   # (q, observation) of the latest frames explained
+        self.vetoed = 0              # candidates the lock's own frames refused
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
@@ -204,8 +214,11 @@ class SearchInit:
         return global_search(lambda x, s: self.scorer(q, observation, x, s), x_cur, self.spread, self.rng,
                              n=self.n, prior_centre=prior_centre)
 
-    def _test(self, q, observation, ll_cur: float, m_cur: float) -> np.ndarray | None:
-        """One frame of the candidate's sequential likelihood-ratio test (module doc)."""
+    def _test(self, q, observation, ll_cur: float, m_cur: float,
+              x_cur: np.ndarray | None = None) -> np.ndarray | None:
+        """One frame of the candidate's sequential likelihood-ratio test (module doc);
+        ``x_cur``: the current estimate, against which the lock's evidence is read (None:
+        not read)."""
         c = self.candidate
         xc = c.result.x
         ll_c, floor = self.scorer.with_floor(q, observation, xc)
@@ -221,10 +234,23 @@ class SearchInit:
         still_lost = c.current / c.frames > threshold
         if still_lost and c.llr > c.frames * self.margin and c.misfits / c.frames < threshold \
                 and ll_c - ll_cur > self.margin:
-            # confirmed: the mode is searched afresh on this frame, around the candidate
-            return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
+            if x_cur is not None and self._contradicts_evidence(xc, x_cur):
+                self.vetoed += 1
+            else:   # confirmed: the mode is searched afresh on this frame, around the candidate
+                return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
         self.candidate = None
         return None
+
+    def _contradicts_evidence(self, xc: np.ndarray, x_cur: np.ndarray) -> bool:
+        """The candidate xc explains the lock's evidence (the latest frames the estimate
+        explained, none since a gap or an adoption) worse than the current estimate x_cur
+        by more than ``margin`` nats per frame: E is nearly constant, so a mode that the
+        frames before a run of unexplained ones contradict is an occluder's, not the tool's."""
+        if not self.evidence:
+            return False
+        X = np.stack([xc, x_cur])
+        ll = sum(self.scorer(q, o, X) for q, o in self.evidence)
+        return bool(ll[0] - ll[1] < -len(self.evidence) * self.margin)
 
     def _track_motion(self, c: _Candidate, q) -> None:
         """Update how far the candidate's projected shaft lines have moved from their
@@ -266,6 +292,7 @@ class SearchInit:
         self.candidate = None
         self.rejected = False
         self.unused = self.lock_run = self.reject_run = 0
+        self.evidence.clear()
         self._restart_challenge()
 
     def _restart_challenge(self) -> None:
@@ -298,17 +325,18 @@ class SearchInit:
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
         if self.since >= self.gap:
             self.lock_run = 0     # a lock from before a gap is stale: it is earned again
+            self.evidence.clear()
         self.since = 0
         if after_gap:
             self._restart_challenge()
-        self._gate(m_cur, after_gap)
+        self._gate(m_cur, after_gap, (q, observation))
         if self.window and not self.rejected and np.isfinite(ll_cur):
             self.history.append((np.asarray(q, float), observation, ll_cur))
             self.used += 1
             if self.candidate is None and not after_gap and not diverged and _scheduled(self.used):
                 return self._challenge(x_cur, cov)
         if self.candidate is not None and not after_gap:
-            return self._test(q, observation, ll_cur, m_cur)
+            return self._test(q, observation, ll_cur, m_cur, x_cur)
         if not (after_gap or diverged):
             return None
         res = self._search(q, observation, x_cur, prior_centre=np.zeros(6))
@@ -317,7 +345,7 @@ class SearchInit:
         if self.locked and self.reject_run < self.gap and not self.near_lock(res.x, x_cur, cov):
             return None   # the lock's covariance gate: E does not jump
         self.candidate = _Candidate(res)
-        return self._test(q, observation, ll_cur, m_cur)
+        return self._test(q, observation, ll_cur, m_cur, x_cur)
 
     def misfit_at(self, q, observation, E: np.ndarray) -> float:
         """This frame's misfit (:func:`misfit`) at E (4x4)."""
@@ -328,7 +356,7 @@ class SearchInit:
         """The misfit above which a frame is not explained (the monitor's threshold)."""
         return self.monitor.threshold if self.monitor is not None else 0.5
 
-    def _gate(self, m_cur: float, after_gap: bool) -> None:
+    def _gate(self, m_cur: float, after_gap: bool, frame: tuple | None = None) -> None:
         """The innovation gate (module doc): mark this frame an outlier frame, or count it
         towards the lock (explained: misfit <= lock_threshold; unexplained, above the
         threshold, ends a lock that is not yet established). A lock uses only frames it
@@ -341,6 +369,8 @@ class SearchInit:
         self.unused = self.reject_run = 0
         if np.isfinite(m_cur) and m_cur <= self.lock_threshold:
             self.lock_run += 1
+            if frame is not None:
+                self.evidence.append(frame)   # the lock's evidence (:meth:`_contradicts_evidence`)
         elif not m_cur <= self.threshold:
             self.lock_run = 0
 
