@@ -154,7 +154,7 @@ def test_runaway_refinement_keeps_an_online_pose_that_is_itself_outside_but_near
     pose 0.2 m away is still the run-away: the one nearer the prior's centre is written."""
     import graphtrack.estimate.batch as batch
     from graphtrack.estimate.lm import LMResult
-    from graphtrack.estimate.reinit import PRIOR_GATE, prior_distance
+    from graphtrack.estimate.prior_region import PRIOR_GATE, prior_distance
     from graphtrack.geometry.se3 import bw_to_matrix
 
     seq = sequence(12, seed=4, scene=SCENE)
@@ -186,7 +186,7 @@ def test_runaway_refinement_keeps_an_online_pose_that_is_itself_outside_but_near
 
 
 def test_outside_prior_hand_computed():
-    from graphtrack.estimate.reinit import PRIOR_GATE, outside_prior
+    from graphtrack.estimate.prior_region import PRIOR_GATE, outside_prior
     from graphtrack.geometry.se3 import bw_to_matrix
 
     E0 = SCENE.E0

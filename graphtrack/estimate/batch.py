@@ -48,7 +48,7 @@ from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussi
                                        left_from_right_cov, split_options)
 from graphtrack.estimate.stereo import stereo_frame_factors
 from factors.edge_bias import BIAS_DIM, bias_key
-from graphtrack.estimate.reinit import PRIOR_GATE, prior_distance
+from graphtrack.estimate.prior_region import PRIOR_GATE, prior_distance
 from graphtrack.estimate.smoother import FixedLagSmootherEstimator
 
 

@@ -37,11 +37,9 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   lock that recovers by itself, e.g. as an occluder slides out, is kept), and the
   candidate still ahead on the last of those
   frames; the search then runs again on that frame around x_c (the candidate was
-  fit to a frame ``confirm`` frames old) and its mode is adopted. A single frame cannot decide: under a full
-  occlusion by another instrument nothing explains the frame and a hypothesis
-  on the occluder's edges wins that frame; as the tool moves with its readings
-  and the occluder does not, such a candidate loses the following frames. A
-  correct lock is kept; a wrong or lost one is replaced ``confirm`` frames later.
+  fit to a frame ``confirm`` frames old) and its mode is adopted. A single frame
+  cannot decide (an occluder's edges can win one; as the tool moves with its
+  readings and the occluder does not, they lose the next ones).
   The test has that power only once the tool has moved: it runs on (the
   threshold confirm * margin becoming frames * margin) until the candidate's
   projected shaft lines, x_c held fixed and the readings changing, have moved
@@ -49,12 +47,11 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   edges of |d rho| + |d theta| times the half image diagonal; default twice
   the likelihood's outlier floor, 2 * 3 * 2 px, beyond which a static occluder's
   edges no longer count for the candidate), or ``gap`` frames have passed.
-  A confirmed candidate is still refused when the lock's *evidence* contradicts it:
-  the latest ``EVIDENCE`` frames the estimate explained (misfit <= ``lock_threshold``;
-  none kept across a gap or an adoption) score it below the current estimate by
-  more than ``margin`` nats per frame. E is nearly constant, so a mode that the
-  frames before a run of outlier frames rule out is fitted to an occluder
-  re-emerging with the tool, not to the tool (docs/decisions/lock-evidence.md).
+  A confirmed candidate is still vetoed when the lock's *evidence*, the latest
+  ``EVIDENCE`` frames the estimate explained (misfit <= ``lock_threshold``; none kept
+  across a gap or an adoption), scores it below the current estimate by more than
+  ``margin`` nats per frame: with E nearly constant, such a mode is an occluder's
+  (docs/decisions/lock-evidence.md).
 - Innovation gate: while *locked* (``lock_frames`` consecutive frames the
   estimator used were explained, misfit <= ``lock_threshold``; before a lock, a
   frame with a misfit between that and the threshold neither extends nor ends
@@ -62,13 +59,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   configuration while the tool is unseen, so the lock is earned again,
   docs/decisions/lock-after-a-gap.md), a frame that the lock does not explain as well as it explained those
   (misfit at the current estimate above ``lock_threshold``) is an outlier frame
-  (``rejected``): the estimator predicts through it without its detections.
-  An occluder (a second instrument, a tissue fold) that covers the shaft shows
-  edges near, but not on, the prediction; used, they pull the estimate off by
-  tens of mm within a second, and a partial one drags it frame by frame with
-  misfits between the two thresholds (docs/decisions/gate-at-lock-threshold.md).
-  A lost lock is still caught: the monitor sees
-  the rejected frames' misfits and the candidate test above replaces it. While
+  (``rejected``): the estimator predicts through it without its detections (an
+  occluder's edges near the prediction would drag it off,
+  docs/decisions/gate-at-lock-threshold.md); the monitor still sees the rejected
+  frames' misfits, and the candidate test above replaces a lost lock. While
   locked, a candidate must also pass the lock's covariance gate
   (:meth:`SearchInit.near_lock`: E is nearly constant, so a well-explained lock
   does not jump 10 mm to an occluder's edges; the gate never closes below
@@ -79,26 +73,16 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
 - Prior guard: an estimate outside the hand-eye prior's region (as the
   ``prior_gate`` above) has run away (the lumped error never leaves it): the
   search is run around the prior's centre and its mode adopted at once.
-- Window challenge: one frame rarely decides between two modes (the shaft's
-  slide along its axis and its tilt towards the camera are barely seen, and a
-  mode 5-10 mm off can explain a frame almost as well as the truth), but the
-  modes of different frames disagree as the tool moves. After 8 and 16 frames
-  used since the last start-up or re-initialisation, the search runs on
-  ``window`` frames (0: no challenge; the smoother's default 6) spread over
-  the frames used since the last adoption (E is nearly constant over half a
-  second). A switch made by the challenge itself is an adoption that keeps the
-  count, so there are at most two challenges per start
-  (docs/decisions/window-challenge.md). The search maximises
-  sum_k log P(z_k | E(x)) + the hand-eye prior. Its mode x_w is
-  adopted when it is a different mode (outside the current estimate's
-  covariance gate, as :meth:`SearchInit.near_lock`, without the motion term)
-  and explains those frames better than the estimates did, by more than
-  ``margin`` nats per frame:
+- Window challenge (one frame rarely decides between two modes; the modes of
+  different frames disagree as the tool moves): after 8 and 16 frames used since
+  the last start, the search runs on ``window`` frames (0: none; the smoother's 6)
+  spread over those frames, maximising sum_k log P(z_k | E(x)) + the hand-eye prior.
+  Its mode x_w is adopted (keeping the count: at most two challenges per start)
+  when it lies outside the current estimate's covariance gate and
 
       Lambda = sum_k [log P(z_k | E(x_w)) - log P(z_k | E(x_k))] > window * margin
 
-  (x_k: the estimate on frame k). The search fits x_w to these very frames;
-  with 6 parameters that gains ~3 nats in all, far below the threshold.
+  (x_k: the estimate on frame k; docs/decisions/window-challenge.md).
 """
 from __future__ import annotations
 
@@ -109,11 +93,10 @@ import numpy as np
 
 from graphtrack.estimate.divergence import DivergenceMonitor, misfit
 from graphtrack.estimate.pf.projection import project
+from graphtrack.estimate.prior_region import PRIOR_GATE
 from graphtrack.estimate.startup import SIGMAS, Scorer, SearchResult, global_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 
-#: chi^2 with 6 degrees of freedom, 99.9 % point: the hand-eye prior's extent
-PRIOR_GATE = 22.46
 #: a lock's covariance gate is never tighter than this fraction of the search spread
 LOCK_FLOOR = 0.1
 #: px, the pixel sigma at which a prediction after a gap is judged (the search's second stage)
@@ -122,19 +105,6 @@ COARSE_SIGMA = SIGMAS[1]
 HISTORY = 16
 #: explained frames kept as the lock's evidence, which a candidate must not contradict
 EVIDENCE = 5
-
-
-def prior_distance(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float) -> float:
-    """|x / sigma|^2 of E = Exp(x) . E_ref, x = (b [m], w [rad]) the left perturbation,
-    sigma = (sigma_b [m] x 3, sigma_w [rad] x 3): the squared Mahalanobis distance from the prior."""
-    x = matrix_to_bw(np.asarray(E, float) @ invert(np.asarray(E_ref, float)))
-    return float(np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2))
-
-
-def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
-                  gate: float = PRIOR_GATE) -> bool:
-    """True when E lies outside the prior's region :func:`prior_distance` <= gate."""
-    return prior_distance(E, E_ref, sigma_b, sigma_w) > gate
 
 
 @dataclass

@@ -1,0 +1,29 @@
+"""The hand-eye prior's region: where the lumped error E can lie.
+
+With x = (b [m], w [rad]) the left perturbation of E = Exp(x) . E_ref from the prior's
+centre E_ref (the recording's hand-eye calibration) and sigma = (sigma_b x 3, sigma_w x 3)
+the prior's spread, the region is |x / sigma|^2 <= ``PRIOR_GATE``, chi^2 with 6 degrees
+of freedom at 99.9 %. An estimate outside it has run away (the re-initialisation
+policy's prior guard, the smoother's containment, the batch's left-out frames).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from graphtrack.geometry.se3 import invert, matrix_to_bw
+
+#: chi^2 with 6 degrees of freedom, 99.9 % point: the hand-eye prior's extent
+PRIOR_GATE = 22.46
+
+
+def prior_distance(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float) -> float:
+    """|x / sigma|^2 of E = Exp(x) . E_ref, x = (b [m], w [rad]) the left perturbation,
+    sigma = (sigma_b [m] x 3, sigma_w [rad] x 3): the squared Mahalanobis distance from the prior."""
+    x = matrix_to_bw(np.asarray(E, float) @ invert(np.asarray(E_ref, float)))
+    return float(np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2))
+
+
+def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
+                  gate: float = PRIOR_GATE) -> bool:
+    """True when E lies outside the prior's region :func:`prior_distance` <= gate."""
+    return prior_distance(E, E_ref, sigma_b, sigma_w) > gate
