@@ -375,7 +375,7 @@ def _confirmation(world, times, x_cand, x_cur):
         q = world.joints(t)
         obs = _obs(world, q, world.E_true, t)
         ll_cur, floor = policy.scorer.with_floor(q, obs, x_cur)
-        if policy._test(q, obs, ll_cur, misfit(ll_cur, floor)) is not None:
+        if policy._test(q, obs, ll_cur, misfit(ll_cur, floor), x_cur) is not None:
             return n, policy
         if policy.candidate is None:
             return None, policy

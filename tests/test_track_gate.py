@@ -130,9 +130,9 @@ def test_end_gate_follows_the_slide_along_the_shaft(pipe):
 
     frame = Frame(0, 0.0, None, Q0[:6], Q0[6])
     pipe.last_E, pipe.last_cov = pipe.ctx.handeye.copy(), None
-    assert pipe.end_gate(frame) == np.inf
+    assert pipe.end_gate(frame, pipe.predicted_end(frame)) == np.inf
     pipe.last_cov = np.eye(6) * 1e-14
-    assert pipe.end_gate(frame) == pytest.approx(END_GATE_MIN_PX)
+    assert pipe.end_gate(frame, pipe.predicted_end(frame)) == pytest.approx(END_GATE_MIN_PX)
     F = base_features(pipe.ctx.robot, Q0).transformed(pipe.ctx.handeye)
     a, r, K = F.shaft_d[0], pipe.ctx.robot.shaft_features[0].radius, pipe.ctx.camera.K
     pipe.last_cov = np.zeros((6, 6))
@@ -141,4 +141,4 @@ def test_end_gate_follows_the_slide_along_the_shaft(pipe):
     p1, _ = end_pixel(F.shaft_end[0] + 1e-6 * a, a, r, K)
     along = d @ (p1 - p0) / 1e-6 * 2e-3                                 # px per 2 mm
     assert 3.0 * along > END_GATE_MIN_PX
-    assert pipe.end_gate(frame) == pytest.approx(3.0 * np.hypot(along, END_SIGMA), rel=1e-3)
+    assert pipe.end_gate(frame, pipe.predicted_end(frame)) == pytest.approx(3.0 * np.hypot(along, END_SIGMA), rel=1e-3)

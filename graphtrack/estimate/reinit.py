@@ -184,11 +184,9 @@ class SearchInit:
         return global_search(lambda x, s: self.scorer(q, observation, x, s), x_cur, self.spread, self.rng,
                              n=self.n, prior_centre=prior_centre)
 
-    def _test(self, q, observation, ll_cur: float, m_cur: float,
-              x_cur: np.ndarray | None = None) -> np.ndarray | None:
-        """One frame of the candidate's sequential likelihood-ratio test (module doc);
-        ``x_cur``: the current estimate, against which the lock's evidence is read (None:
-        not read)."""
+    def _test(self, q, observation, ll_cur: float, m_cur: float, x_cur: np.ndarray) -> np.ndarray | None:
+        """One frame of the candidate's sequential likelihood-ratio test (module doc) against
+        the current estimate x_cur (its log-likelihood ll_cur and misfit m_cur on this frame)."""
         c = self.candidate
         xc = c.result.x
         ll_c, floor = self.scorer.with_floor(q, observation, xc)
@@ -204,7 +202,7 @@ class SearchInit:
         still_lost = c.current / c.frames > threshold
         if still_lost and c.llr > c.frames * self.margin and c.misfits / c.frames < threshold \
                 and ll_c - ll_cur > self.margin:
-            if x_cur is not None and self._contradicts_evidence(xc, x_cur):
+            if self._contradicts_evidence(xc, x_cur):
                 self.vetoed += 1
             else:   # confirmed: the mode is searched afresh on this frame, around the candidate
                 return self._adopt(self._search(q, observation, xc, prior_centre=np.zeros(6)))
@@ -326,7 +324,7 @@ class SearchInit:
         """The misfit above which a frame is not explained (the monitor's threshold)."""
         return self.monitor.threshold if self.monitor is not None else 0.5
 
-    def _gate(self, m_cur: float, after_gap: bool, frame: tuple | None = None) -> None:
+    def _gate(self, m_cur: float, after_gap: bool, frame: tuple) -> None:
         """The innovation gate (module doc): mark this frame an outlier frame, or count it
         towards the lock (explained: misfit <= lock_threshold; unexplained, above the
         threshold, ends a lock that is not yet established). A lock uses only frames it
@@ -339,8 +337,7 @@ class SearchInit:
         self.unused = self.reject_run = 0
         if np.isfinite(m_cur) and m_cur <= self.lock_threshold:
             self.lock_run += 1
-            if frame is not None:
-                self.evidence.append(frame)   # the lock's evidence (:meth:`_contradicts_evidence`)
+            self.evidence.append(frame)   # (q, observation): the lock's evidence (:meth:`_contradicts_evidence`)
         elif not m_cur <= self.threshold:
             self.lock_run = 0
 

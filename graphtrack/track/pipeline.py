@@ -202,19 +202,19 @@ class Pipeline:
             feats, K = feats.transformed(self.ctx.right_T_left), self.ctx.right.K
         return end_pixel(feats.shaft_end[0], feats.shaft_d[0], shafts[0].radius, K)
 
-    def end_gate(self, frame: Frame) -> float:
+    def end_gate(self, frame: Frame, predicted) -> float:
         """px: how far along the shaft's image a detected end may lie from the predicted
-        one: max(``END_GATE_MIN_PX``, 3 sqrt(d^T P d + s^2)), P the image covariance of
+        one (``predicted``: :meth:`predicted_end` of this frame, None without one): max(``END_GATE_MIN_PX``, 3 sqrt(d^T P d + s^2)), P the image covariance of
         the predicted end's front point under the last estimate's (b, w) covariance, d
         the shaft's image direction there, s the end's detection noise (``END_SIGMA``)
         (:func:`graphtrack.estimate.gating.gate_along`); inf before the first estimate,
         without a covariance, or with the end behind the camera."""
-        cov, pred = self.last_cov, self.predicted_end(frame)
-        if cov is None or pred is None or not np.all(np.isfinite(cov)):
+        cov = self.last_cov
+        if cov is None or predicted is None or not np.all(np.isfinite(cov)):
             return float("inf")
         feats = self._predicted_features(frame)
         P3 = front_point(feats.shaft_end[0], feats.shaft_d[0], self.ctx.robot.shaft_features[0].radius)
-        return gate_along(P3, pred[1], self.ctx.camera.K, cov, END_SIGMA, END_GATE_MIN_PX)
+        return gate_along(P3, predicted[1], self.ctx.camera.K, cov, END_SIGMA, END_GATE_MIN_PX)
 
     def _end(self, image, camera, detection, predicted) -> np.ndarray | None:
         """The shaft end (1, 4) found on ``image`` (:mod:`graphtrack.detect.shaft_end`)
@@ -232,11 +232,10 @@ class Pipeline:
         detection = observation = None
         self.right = (None, None)
         if self.needs_images:
-            gate = self.gate(frame)
-            self._end_gate = self.end_gate(frame)
+            gate, end = self.gate(frame), self.predicted_end(frame)
+            self._end_gate = self.end_gate(frame, end)
             detection, observation = self._image(frame.image, self.ctx.camera, self.detect_camera,
-                                                 self.predicted_lines(frame), gate, ms,
-                                                 self.predicted_end(frame))
+                                                 self.predicted_lines(frame), gate, ms, end)
             if self.stereo and frame.image_right is not None:
                 self.right = self._image(frame.image_right, self.ctx.right, self.detect_right,
                                          self.predicted_lines(frame, right=True), gate, ms,
