@@ -70,6 +70,8 @@ def test_refine_is_track_with_batch(rec, tmp_path):
     assert main(["refine", str(rec), "--out", str(tmp_path / "r"), "--max-frames", "6", "--quiet"]) == 0
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
     assert m["estimator"] == "batch" and m["frames_tracked"] == 6
+    rep = m["estimator_report"]           # the refinement's figures and the online smoother's counts
+    assert rep["iterations"] >= 1 and rep["online"]["adopted"] >= 1
     assert (tmp_path / "r" / "trajectory.tum").is_file()
 
 

@@ -10,7 +10,8 @@ from graphtrack.estimate.base import STD_COLUMNS, Estimator
 from graphtrack.study.plan import plan, seed_dependent
 from graphtrack.study.cells import StudyOptions
 
-MEMBERS = ("name", "uses_observations", "stochastic", "supported_observations", "extra_columns", "step", "finish")
+MEMBERS = ("name", "uses_observations", "stochastic", "supported_observations", "extra_columns", "step", "finish",
+           "report")
 
 
 def test_protocol_lists_what_the_loop_uses():

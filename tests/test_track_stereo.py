@@ -51,6 +51,13 @@ def test_stereo_run_and_its_metrics(recordings, tmp_path):
     assert np.isfinite(m["tip_error_3d_labels_mm"]["mean"]) and np.isfinite(m["tip_error_right_px"]["mean"])
     doc = json.loads((tmp_path / "s" / "metrics.json").read_text())
     assert doc["tip_error_3d_labels_mm"] == m["tip_error_3d_labels_mm"]
+    # the smoother's policy counts: the start-up search ran and its mode was adopted; no more
+    # outlier frames than trajectory.csv flags
+    rep = doc["estimator_report"]
+    assert rep["searches"] >= rep["adopted"] >= 1
+    flagged = np.loadtxt(tmp_path / "s" / "trajectory.csv", delimiter=",", skiprows=1,
+                         usecols=[open(tmp_path / "s" / "trajectory.csv").readline().strip().split(",").index("outlier")])
+    assert rep["outlier_frames"] <= flagged.sum()
     import cv2
     cap = cv2.VideoCapture(str(tmp_path / "s" / "overlay.mp4"))
     ok, img = cap.read()

@@ -91,3 +91,9 @@ class Estimator(Protocol):
         estimates for every frame (which then replace the streamed rows);
         online ones return None."""
         ...
+
+    def report(self) -> dict:  # pragma: no cover - protocol
+        """After :meth:`finish`: the run's counts a user reads to judge it (searches,
+        re-initialisations, outlier frames, ...), metrics.json's ``estimator_report``;
+        {} when there are none."""
+        ...

@@ -196,6 +196,15 @@ class BatchEstimator:
             out.append(P[k // every][o:o + 6, o:o + 6])
         return out
 
+    def report(self) -> dict:
+        """The refinement's figures (build / optimise / covariance seconds, iterations, final
+        error, frames the online smoother flagged, frames kept at the online pose) and, under
+        ``online``, the online smoother's report."""
+        out = dict(self.stats)
+        if self.online is not None:
+            out["online"] = self.online.report()
+        return out
+
     def finish(self) -> list[Estimate]:
         n = len(self.frames)
         if n == 0:

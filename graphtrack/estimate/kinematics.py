@@ -23,3 +23,6 @@ class KinematicsEstimator:
 
     def finish(self):
         return None
+
+    def report(self) -> dict:
+        return {}

@@ -357,3 +357,7 @@ class ParticleFilter:
 
     def finish(self):
         return None
+
+    def report(self) -> dict[str, int]:
+        """The re-initialisation policy's counts (:meth:`SearchInit.report`) and the window moves."""
+        return {**(self.search.report() if self.search is not None else {}), "window_moves": self.window_moves}

@@ -22,9 +22,8 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   restarts (its searches 8 and 16 frames after the gap). One frame cannot decide
   here either: the tool re-enters the view an edge at a time, and a mode fit to
   one line is set along the directions that line does not see by the hand-eye
-  prior, not by what the estimate learnt before the gap
-  (docs/decisions/after-a-gap.md). A prediction that still fits keeps its lock
-  (the monitor watches it).
+  prior (docs/decisions/after-a-gap.md). A prediction that still fits keeps its
+  lock (the monitor watches it).
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -35,11 +34,9 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   and the candidate's own mean misfit (:func:`graphtrack.estimate.divergence.misfit`)
   under the monitor's threshold while the current estimate's stays above it (a
   lock that recovers by itself, e.g. as an occluder slides out, is kept), and the
-  candidate still ahead on the last of those
-  frames; the search then runs again on that frame around x_c (the candidate was
-  fit to a frame ``confirm`` frames old) and its mode is adopted. A single frame
-  cannot decide (an occluder's edges can win one; as the tool moves with its
-  readings and the occluder does not, they lose the next ones).
+  candidate still ahead on the last of those frames; the search then runs again on
+  that frame around x_c and its mode is adopted. A single frame cannot decide (an
+  occluder's edges can win one; as the tool moves and the occluder does not, they lose).
   The test has that power only once the tool has moved: it runs on (the
   threshold confirm * margin becoming frames * margin) until the candidate's
   projected shaft lines, x_c held fixed and the readings changing, have moved
@@ -59,9 +56,8 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   configuration while the tool is unseen, so the lock is earned again,
   docs/decisions/lock-after-a-gap.md), a frame that the lock does not explain as well as it explained those
   (misfit at the current estimate above ``lock_threshold``) is an outlier frame
-  (``rejected``): the estimator predicts through it without its detections (an
-  occluder's edges near the prediction would drag it off,
-  docs/decisions/gate-at-lock-threshold.md); the monitor still sees the rejected
+  (``rejected``): the estimator predicts through it without its detections
+  (docs/decisions/gate-at-lock-threshold.md); the monitor still sees the rejected
   frames' misfits, and the candidate test above replaces a lost lock. While
   locked, a candidate must also pass the lock's covariance gate
   (:meth:`SearchInit.near_lock`: E is nearly constant, so a well-explained lock
@@ -164,6 +160,13 @@ class SearchInit:
         self.used = 0                # frames used since the last start (the challenge's schedule)
         self.evidence: deque = deque(maxlen=EVIDENCE)   # (q, observation) of the latest frames explained
         self.vetoed = 0              # candidates the lock's own frames refused
+
+    def report(self) -> dict[str, int]:
+        """The policy's counts over the run: metrics.json's ``estimator_report`` (docs/sequence-format.md)."""
+        return {"searches": self.searches, "adopted": self.count,
+                "divergence_alarms": self.monitor.fired if self.monitor is not None else 0,
+                "outlier_frames": self.rejections, "vetoed": self.vetoed, "prior_guard": self.guarded,
+                "window_challenges": self.challenges, "window_switches": self.switches}
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))

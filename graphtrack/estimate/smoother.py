@@ -17,9 +17,8 @@ One gtsam.Pose3 E_t per frame (key x_t; y_t once settled). Factors:
 Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
 (shaft factors, then with markers; markers-only frames held back up to
 ``start_up_wait``), or from the global search's mode (:mod:`graphtrack.estimate.reinit`)
-in one stage with all the frame's factors.
-A re-initialisation by that policy restarts the window: the frame is started up
-as the first one. An outlier frame of its innovation gate adds only the motion factor.
+in one stage with all the frame's factors. A re-initialisation by that policy restarts
+the window: the frame is started up as the first one. An outlier frame of its innovation gate adds only the motion factor.
 Containment: an estimate outside the hand-eye prior's region (the policy's prior
 gate; the lumped error never leaves it) is not reported: the window is dropped, the
 pose before the frame is reported (covariance + one motion step; the prior's if that
@@ -395,3 +394,7 @@ class FixedLagSmootherEstimator:
 
     def finish(self):
         return None
+
+    def report(self) -> dict[str, int]:
+        """The re-initialisation policy's counts (:meth:`SearchInit.report`) and the updates refused."""
+        return {**(self.reinit.report() if self.reinit is not None else {}), "refused_updates": self.refused}

@@ -140,6 +140,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         overlay.close()
     result = _result(path, out, options, rec, ctx, run, pipe.left_only)
     result.update(run.summary(wall))
+    result["estimator_report"] = pipe.estimator.report()
     if pipe.needs_images:
         result["no_detection_stretches"] = stretches = no_detection_stretches(run.frames, run.informative)
         for a, b in stretches:
