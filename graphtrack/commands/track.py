@@ -127,7 +127,8 @@ def run(args) -> int:
                    topics=source_from_args(args))
     require_tracked(result, args.out)   # no tracked frame: exit status 2, never 0
     if not args.quiet:
-        keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps")
+        keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps",
+                "estimator_report")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))
         video = ", overlay.mp4" if args.video else ""
         print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json{video}")
