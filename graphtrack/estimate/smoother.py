@@ -16,9 +16,10 @@ One gtsam.Pose3 E_t per frame (key x_t; y_t once settled). Factors:
 
 Start-up: the first frame with detections is solved alone by Levenberg-Marquardt
 (shaft factors, then with markers; markers-only frames held back up to
-``start_up_wait``), or from the global search's mode (:mod:`graphtrack.estimate.reinit`)
-in one stage with all the frame's factors. A re-initialisation by that policy restarts
-the window: the frame is started up as the first one. An outlier frame of its innovation gate adds only the motion factor.
+``start_up_wait``), or from the global search's mode (:mod:`graphtrack.estimate.reinit`) in
+one stage with all the frame's factors. A re-initialisation by that policy restarts the
+window (the frame is started up as the first one); an outlier frame of its innovation
+gate adds only the motion factor.
 Containment: an estimate outside the hand-eye prior's region (the policy's prior
 gate; the lumped error never leaves it) is not reported: the window is dropped, the
 pose before the frame is reported (covariance + one motion step; the prior's if that
@@ -30,9 +31,8 @@ left image, :func:`graphtrack.estimate.divergence.misfit`, higher by more than
 misfit): robust factors kept edges that are not the shaft's, or a Gauss-Newton step
 overshot. The pose before is reported, the frame is an outlier frame, and the window
 restarts with a prior at that pose and covariance (docs/decisions/refused-update.md).
-Both need the policy (``search``).
-The policy's window challenge (``search_window`` frames; 0: off) re-searches on
-several frames 8 and 16 frames after each start (docs/decisions/window-challenge.md).
+Both need the policy (``search``). Its window challenge (``search_window`` frames; 0: off)
+re-searches on several frames 8 and 16 frames after each start (window-challenge.md).
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
 t: x_t right after frame t's update (filtered); cov/std: its marginal in the left
 (b, w) perturbation. iSAM2 relinearises at ``relinearize_threshold`` (rad / m of
