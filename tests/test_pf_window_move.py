@@ -21,16 +21,41 @@ def test_the_search_finds_a_mode_several_cloud_spreads_away():
     scale = np.array([1e-3, 1e-3, 4e-3, 0.01, 0.01, 0.01])
     mode = np.array([0.0, 0.0, 3e-3, 0.0, 0.0, 0.0])           # 3 mm along z, a flat-ish axis
     J = quadratic(mode, scale)
-    res = window_mode(J, np.zeros(6), cloud_std=np.full(6, 1e-4), floor=np.array([1e-3] * 3 + [7e-3] * 3),
+    res = window_mode(J, np.zeros(6), cloud_cov=np.diag(np.full(6, 1e-4) ** 2), floor=np.array([1e-3] * 3 + [7e-3] * 3),
                       prior_spread=np.full(6, 1e9), rng=np.random.default_rng(0))
     # J(0) = -1/2 (3/4)^2 = -0.28125 by hand; the mode scores 0
     assert abs(res.x[2] - 3e-3) < 0.6e-3
     assert 0.2 < res.gain <= 0.28125 + 1e-12
 
 
+def test_the_search_walks_along_the_valley_the_cloud_spans():
+    """A valley along d = (b_y, w_x) / |.| (the slide / tilt ridge of a shaft seen from
+    the side): J(x) = -1/2 [((x - m) . d / 5 mm)^2 + |(x - m) - ((x - m) . d) d|^2 / (0.05 mm)^2],
+    its mode m 4 mm along d from the cloud's mean (four of the cloud's 1 mm spreads along d;
+    0.05 mm across it). By hand J(0) = -1/2 (4 / 5)^2 = -0.32 and J(m) = 0: the search,
+    drawn along the cloud and walking over its stages, finds m and the gain 0.32 whatever
+    its seed."""
+    d = np.zeros(6)
+    d[1], d[3] = 1.0, 1.0
+    d /= np.linalg.norm(d)
+    m = 4e-3 * d
+    along, across = 5e-3, 5e-5
+
+    def J(X):
+        r = np.atleast_2d(X) - m
+        t = r @ d
+        return -0.5 * ((t / along) ** 2 + np.sum((r - t[:, None] * d) ** 2, axis=1) / across ** 2)
+
+    cov = (1e-3) ** 2 * np.outer(d, d) + across ** 2 * (np.eye(6) - np.outer(d, d))
+    for seed in range(5):
+        res = window_mode(J, np.zeros(6), cov, np.full(6, 1e-5), np.full(6, 1e9), np.random.default_rng(seed))
+        assert np.linalg.norm(res.x - m) < 0.5e-3, seed
+        assert 0.3 < res.gain <= 0.32 + 1e-9, seed
+
+
 def test_a_cloud_at_the_mode_gains_nothing():
     scale = np.full(6, 1e-3)
-    res = window_mode(quadratic(np.zeros(6), scale), np.zeros(6), np.full(6, 1e-4), np.full(6, 1e-3),
+    res = window_mode(quadratic(np.zeros(6), scale), np.zeros(6), np.diag(np.full(6, 1e-4) ** 2), np.full(6, 1e-3),
                       np.full(6, 1e9), np.random.default_rng(1))
     assert res.gain == 0.0
     np.testing.assert_array_equal(res.x, np.zeros(6))
@@ -92,7 +117,7 @@ def test_switched_off_it_leaves_the_filter_as_it_was():
 
 
 def test_nothing_scored_means_no_move():
-    res = window_mode(lambda X: np.full(len(np.atleast_2d(X)), -np.inf), np.zeros(6), np.full(6, 1e-4),
+    res = window_mode(lambda X: np.full(len(np.atleast_2d(X)), -np.inf), np.zeros(6), np.diag(np.full(6, 1e-4) ** 2),
                       np.full(6, 1e-3), np.full(6, 1e-2), np.random.default_rng(0))
     assert res.gain == -np.inf and not res.gain > MIN_GAIN
     np.testing.assert_array_equal(res.x, np.zeros(6))

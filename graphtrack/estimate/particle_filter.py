@@ -298,14 +298,13 @@ class ParticleFilter:
         """Shift the cloud to the mode of the frames since its start when that mode is
         clearly better (:mod:`graphtrack.estimate.pf.window_move`); True when moved."""
         x_bar, cov = self._moments(np.exp(self.logw))
-        std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
         prior = self.search.spread if self.search is not None else self.init_std
         frames = list(self._window)
 
         def loglik(X):
             return sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
 
-        res = window_mode(loglik, x_bar, std, self.init_std / 4, prior, self._move_rng)
+        res = window_mode(loglik, x_bar, cov, self.init_std / 4, prior, self._move_rng)
         if not res.gain > MIN_GAIN or (self.search is not None and self.search.outside(res.x)):
             return False          # not clearly better, or outside the prior gate the search keeps
         self.x = self.x + (res.x - x_bar)

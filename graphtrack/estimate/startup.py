@@ -150,7 +150,7 @@ _LIKELIHOOD_OPTIONS = dict(gamma_rho=om.GAMMA_RHO, gamma_theta=om.GAMMA_THETA, u
 def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.Generator,
                   n: int = 2048, sigmas=SIGMAS, elite: float = 0.03, inflate: float = 1.5,
                   prior_centre: np.ndarray | None = None, prior_spread: np.ndarray | None = None,
-                  incumbent: np.ndarray | None = None) -> SearchResult:
+                  incumbent: np.ndarray | None = None, first_cov: np.ndarray | None = None) -> SearchResult:
     """Annealed cross-entropy search (module doc).
 
     score(x, sigma) -> (n,) log-likelihood of hypotheses x (n, 6) at pixel sigma;
@@ -158,13 +158,14 @@ def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.
     the prior term of J is N(prior_centre, diag(prior_spread^2)) (defaults: centre and
     spread; the re-initialisations search around the current estimate under the
     hand-eye prior); incumbent: a hypothesis scored in the first stage too (later
-    stages re-score the best so far).
+    stages re-score the best so far); first_cov (6, 6): the first stage's covariance
+    instead of diag(spread^2) (spread still floors the elite's covariance).
     """
     mu = np.asarray(centre, float).copy()
     centre = mu.copy() if prior_centre is None else np.asarray(prior_centre, float)
     spread = np.asarray(spread, float)
     prior_spread = spread if prior_spread is None else np.asarray(prior_spread, float)
-    L = np.diag(spread)
+    L = np.diag(spread) if first_cov is None else np.linalg.cholesky(np.asarray(first_cov, float))
     n_elite = max(8, int(round(elite * n)))
     best = None if incumbent is None else np.asarray(incumbent, float)
     for s, sigma in enumerate(sigmas):

@@ -19,9 +19,12 @@ each (re)start (a frame with detections, not an outlier frame): a cross-entropy 
 
     J(x) = sum_i log P(z_i | E(x)) - 1/2 |x / s|^2
 
-over those frames, from N(x_bar, diag(sd^2)), sd = max(3 std_cloud, ``floor``) per axis
-(x_bar, std_cloud: the cloud's weighted mean and spread), three stages of ``n``
-hypotheses, the cloud's mean the incumbent. When the best x* beats the mean by
+over those frames, its first stage drawn from N(x_bar, 9 C_cloud + diag(``floor``^2))
+(x_bar, C_cloud: the cloud's weighted mean and covariance): the cloud's own shape, so
+that the draws lie along the valley it spans rather than across it; ``STAGES`` = 6
+stages of ``n`` hypotheses, each re-centred on the last one's elite with their
+covariance widened 1.5 times, so that the search can walk several cloud spreads along
+the valley; the cloud's mean the incumbent. When the best x* beats the mean by
 J(x*) - J(x_bar) > ``MIN_GAIN`` = 3 nats (the log posterior ratio of the two points;
 3 is where Kass & Raftery's scale puts "strong" evidence, 2 ln B > 6) and lies inside
 the search's prior gate, every particle is shifted by x* - x_bar: the cloud keeps its
@@ -40,6 +43,8 @@ from graphtrack.estimate.startup import global_search
 MIN_GAIN = 3.0
 #: frames used since a (re)start after which the cloud is moved (as the smoother's challenge)
 SCHEDULE = (8, 16)
+#: cross-entropy stages of the move's search (docs/decisions/pf-window-move.md: 3 -> 6)
+STAGES = 6
 
 
 @dataclass
@@ -50,19 +55,23 @@ class WindowMode:
     gain: float
 
 
-def window_mode(loglik, x_bar: np.ndarray, cloud_std: np.ndarray, floor: np.ndarray,
-                prior_spread: np.ndarray, rng: np.random.Generator, n: int = 512, stages: int = 3,
+def window_mode(loglik, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndarray,
+                prior_spread: np.ndarray, rng: np.random.Generator, n: int = 512, stages: int = STAGES,
                 elite: float = 0.03) -> WindowMode:
     """The mode of J (module doc) near x_bar: loglik(x (m, 6)) -> (m,) the frames' summed
-    log-likelihood; prior_spread (6,): s. The search is
+    log-likelihood; cloud_cov (6, 6): the cloud's covariance; floor (6,): the first stage's
+    least spread per axis; prior_spread (6,): s. The search is
     :func:`graphtrack.estimate.startup.global_search` at one pixel sigma, the cloud's mean
     its incumbent from the first stage."""
     x_bar = np.asarray(x_bar, float)
     prior_spread = np.asarray(prior_spread, float)
-    sd = np.maximum(3.0 * np.asarray(cloud_std, float), np.asarray(floor, float))
+    cloud_cov, floor = np.asarray(cloud_cov, float), np.asarray(floor, float)
+    first = 9.0 * cloud_cov + np.diag(floor ** 2)
+    sd = np.maximum(3.0 * np.sqrt(np.clip(np.diag(cloud_cov), 0.0, None)), floor)  # floors the elite's covariance
     J0 = float(loglik(x_bar[None])[0] - 0.5 * np.sum((x_bar / prior_spread) ** 2))
     res = global_search(lambda x, _sigma: loglik(x), x_bar, sd, rng, n=n, sigmas=(None,) * stages,
-                        elite=elite, prior_centre=np.zeros(6), prior_spread=prior_spread, incumbent=x_bar)
+                        elite=elite, prior_centre=np.zeros(6), prior_spread=prior_spread, incumbent=x_bar,
+                        first_cov=first)
     if not np.isfinite(res.score):
         return WindowMode(x_bar, -np.inf)            # nothing scored: no mode, no move
     return WindowMode(res.x, res.score - J0 if np.isfinite(J0) else np.inf)
