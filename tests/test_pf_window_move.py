@@ -121,3 +121,7 @@ def test_nothing_scored_means_no_move():
                       np.full(6, 1e-3), np.full(6, 1e-2), np.random.default_rng(0))
     assert res.gain == -np.inf and not res.gain > MIN_GAIN
     np.testing.assert_array_equal(res.x, np.zeros(6))
+    # a degenerate cloud (non-finite covariance) is not searched: no move, no exception
+    res = window_mode(lambda X: np.zeros(len(np.atleast_2d(X))), np.zeros(6), np.full((6, 6), np.nan),
+                      np.full(6, 1e-3), np.full(6, 1e-2), np.random.default_rng(0))
+    assert res.gain == -np.inf

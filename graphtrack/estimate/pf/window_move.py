@@ -66,7 +66,9 @@ def window_mode(loglik, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndar
     x_bar = np.asarray(x_bar, float)
     prior_spread = np.asarray(prior_spread, float)
     cloud_cov, floor = np.asarray(cloud_cov, float), np.asarray(floor, float)
-    first = 9.0 * cloud_cov + np.diag(floor ** 2)
+    first = 9.0 * cloud_cov + np.diag(floor ** 2)    # positive definite for a finite cloud and floor > 0
+    if not (np.all(np.isfinite(first)) and np.all(np.isfinite(x_bar))):
+        return WindowMode(x_bar, -np.inf)               # a degenerate cloud: no mode, no move
     sd = np.maximum(3.0 * np.sqrt(np.clip(np.diag(cloud_cov), 0.0, None)), floor)  # floors the elite's covariance
     J0 = float(loglik(x_bar[None])[0] - 0.5 * np.sum((x_bar / prior_spread) ** 2))
     res = global_search(lambda x, _sigma: loglik(x), x_bar, sd, rng, n=n, sigmas=(None,) * stages,
