@@ -204,7 +204,8 @@ class Pipeline:
 
     def end_gate(self, frame: Frame, predicted) -> float:
         """px: how far along the shaft's image a detected end may lie from the predicted
-        one (``predicted``: :meth:`predicted_end` of this frame, None without one): max(``END_GATE_MIN_PX``, 3 sqrt(d^T P d + s^2)), P the image covariance of
+        one (``predicted``: :meth:`predicted_end` of this frame, None without one):
+        max(``END_GATE_MIN_PX``, 3 sqrt(d^T P d + s^2)), P the image covariance of
         the predicted end's front point under the last estimate's (b, w) covariance, d
         the shaft's image direction there, s the end's detection noise (``END_SIGMA``)
         (:func:`graphtrack.estimate.gating.gate_along`); inf before the first estimate,
