@@ -31,6 +31,29 @@ def test_forward_shapes():
     assert sum(p.numel() for p in net.parameters()) < 100_000
 
 
+def test_pointwise_product_equals_the_1x1_convolution():
+    """Pointwise computes F.conv2d's 1x1 convolution on NCHW and channels-last input,
+    and keeps channels-last output channels-last."""
+    from torch import nn
+
+    from graphtrack.detect.learned_net import Pointwise
+
+    g = torch.Generator().manual_seed(1)
+    conv = nn.Conv2d(5, 3, 1)
+    with torch.no_grad():
+        conv.weight.copy_(torch.randn(3, 5, 1, 1, generator=g))
+        conv.bias.copy_(torch.randn(3, generator=g))
+    pw = Pointwise(conv)
+    x = torch.randn(2, 5, 7, 9, generator=g)
+    with torch.inference_mode():
+        ref = torch.nn.functional.conv2d(x, conv.weight, conv.bias)
+        for inp in (x, x.contiguous(memory_format=torch.channels_last)):
+            y = pw(inp)
+            assert y.shape == ref.shape
+            np.testing.assert_allclose(y.numpy(), ref.numpy(), rtol=0, atol=1e-5)
+        assert pw(x.contiguous(memory_format=torch.channels_last)).is_contiguous(memory_format=torch.channels_last)
+
+
 def test_traced_net_computes_what_the_eager_net_computes():
     """The detector runs a torch.jit trace of the fused net (speed); on any input size
     (the trace was made at another) its maps equal the eager module's to 1e-4 (the NHWC kernels

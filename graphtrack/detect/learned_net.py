@@ -52,6 +52,31 @@ class DWSep(nn.Sequential):
         super().__init__(ConvBNReLU(cin, cin, 3, stride, dilation, groups=cin), ConvBNReLU(cin, cout, 1))
 
 
+class Pointwise(nn.Module):
+    """A 1x1 convolution (groups 1) as one matrix product over the pixels:
+    y[n, :, i, j] = W x[n, :, i, j] + b, computed as X W^T + b with X the (N h w, C_in)
+    pixel matrix. On channels-last (NHWC) input X is a view and the output comes back
+    channels-last; on this net's 1x1 layers it is faster on one core than the convolution
+    kernels, which copy the input (docs/decisions/stereo-detection.md)."""
+
+    def __init__(self, conv: nn.Conv2d):
+        super().__init__()
+        cout, cin = conv.weight.shape[:2]
+        self.register_buffer("weight_t", conv.weight.detach().reshape(cout, cin).t().contiguous())
+        bias = conv.bias.detach() if conv.bias is not None else torch.zeros(cout)
+        self.register_buffer("bias", bias.clone())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n, c, h, w = x.shape
+        y = torch.addmm(self.bias, x.permute(0, 2, 3, 1).reshape(-1, c), self.weight_t)
+        return y.view(n, h, w, -1).permute(0, 3, 1, 2)
+
+
+def _is_pointwise(m: nn.Module) -> bool:
+    return (isinstance(m, nn.Conv2d) and m.kernel_size == (1, 1) and m.stride == (1, 1) and m.groups == 1
+            and m.padding in ((0, 0), 0))
+
+
 class LineNet(nn.Module):
     def __init__(self, width: int = 16, stem: int = 8):
         super().__init__()
@@ -82,7 +107,8 @@ class LineNet(nn.Module):
 
     @torch.no_grad()
     def fused(self) -> "LineNet":
-        """An inference copy with every BatchNorm folded into its conv (eval only)."""
+        """An inference copy with every BatchNorm folded into its conv and every 1x1
+        convolution a :class:`Pointwise` product (eval only)."""
         net = copy.deepcopy(self).eval()
         for m in net.modules():
             if isinstance(m, ConvBNReLU) and isinstance(m[1], nn.BatchNorm2d):
@@ -94,6 +120,10 @@ class LineNet(nn.Module):
                 fconv.bias.copy_(bn.bias - bn.running_mean * scale)
                 m[0] = fconv
                 m[1] = nn.Identity()
+        for m in list(net.modules()):
+            for name, child in list(m.named_children()):
+                if _is_pointwise(child):
+                    setattr(m, name, Pointwise(child))
         return net
 
 
