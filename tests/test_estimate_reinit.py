@@ -17,7 +17,7 @@ import pytest
 from graphtrack.detect.base import Observation
 from graphtrack.estimate.divergence import misfit
 from graphtrack.estimate import make_estimator
-from graphtrack.estimate.reinit import LOCK_FLOOR, PRIOR_GATE, SearchInit, _Candidate
+from graphtrack.estimate.reinit import BLIND_MISFIT, LOCK_FLOOR, PRIOR_GATE, SearchInit, _Candidate
 from graphtrack.estimate.startup import SearchResult
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 from graphtrack.io.frame import Frame
@@ -440,3 +440,44 @@ def test_a_candidate_the_locks_own_frames_contradict_is_vetoed():
     assert len(policy.evidence) <= 1 and all(q is qt for q, _ in policy.evidence)   # none from before
     policy._adopt(SearchResult(x_true, np.eye(6) * 1e-6, 0.0, 0.0))
     assert len(policy.evidence) == 0
+
+
+def test_frames_that_show_nothing_of_the_tool_age_the_evidence_as_a_gap_does():
+    """Detections the lock explains none of (misfit >= BLIND_MISFIT at the estimate, computed
+    here by the scorer itself: edges and markers of a pose 40 mm off, as a detector's false
+    edges while the tool is out of view) for ``gap`` frames in a row drop the lock's
+    evidence, as ``gap`` frames without detections do; one frame fewer keeps it, and a frame
+    the lock explains in between starts the count again."""
+    world = make_world(3, 3.0, 1.5)
+    elsewhere = bw_to_matrix(np.array([0.04, 0.0, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
+
+    def locked_policy():
+        policy = SearchInit(world.ctx, seed=0, gap=10)
+        for t in range(1 + policy.lock_frames):
+            qt, _ = _frame(world, t)
+            policy.propose(qt, _obs(world, qt, world.E_true, t), world.E_true, True)
+        assert policy.locked and len(policy.evidence) > 0
+        return policy
+
+    def blind(policy, t):
+        qt, _ = _frame(world, t)
+        obs = _obs(world, qt, elsewhere, t)
+        assert policy.misfit_at(qt, obs, world.E_true) >= BLIND_MISFIT     # the oracle: nothing explained
+        policy.propose(qt, obs, world.E_true, True)
+
+    policy = locked_policy()
+    for t in range(policy.gap - 1):
+        blind(policy, 20 + t)
+    assert len(policy.evidence) > 0
+    blind(policy, 20 + policy.gap)
+    assert len(policy.evidence) == 0
+
+    policy = locked_policy()
+    for t in range(policy.gap - 1):
+        blind(policy, 20 + t)
+    qt, _ = _frame(world, 40)
+    policy.propose(qt, _obs(world, qt, world.E_true, 40), world.E_true, True)   # explained again
+    n = len(policy.evidence)
+    for t in range(policy.gap - 1):
+        blind(policy, 50 + t)
+    assert len(policy.evidence) == n > 0

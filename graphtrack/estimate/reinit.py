@@ -48,7 +48,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   ``EVIDENCE`` frames the estimate explained (misfit <= ``lock_threshold``; none kept
   across a gap or an adoption), scores it below the current estimate by more than
   ``margin`` nats per frame: with E nearly constant, such a mode is an occluder's
-  (docs/decisions/lock-evidence.md).
+  (docs/decisions/lock-evidence.md). The evidence is dropped, as after a gap, once
+  ``gap`` frames in a row showed nothing of the tool at the estimate: no detections, or
+  detections none of which it explains (misfit >= ``BLIND_MISFIT``: a detector's false
+  edges while the tool is out of view); E moves with the arm meanwhile.
 - Innovation gate: while *locked* (``lock_frames`` consecutive frames the
   estimator used were explained, misfit <= ``lock_threshold``; before a lock, a
   frame with a misfit between that and the threshold neither extends nor ends
@@ -93,6 +96,8 @@ from graphtrack.estimate.prior_region import PRIOR_GATE
 from graphtrack.estimate.startup import SIGMAS, Scorer, SearchResult, global_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 
+#: a frame whose misfit at the estimate reaches this shows nothing of the tool there (as no detections)
+BLIND_MISFIT = 0.95
 #: a lock's covariance gate is never tighter than this fraction of the search spread
 LOCK_FLOOR = 0.1
 #: px, the pixel sigma at which a prediction after a gap is judged (the search's second stage)
@@ -157,6 +162,7 @@ class SearchInit:
         self.window = int(window)    # frames of the window challenge (0: no challenge)
         self.history: deque = deque(maxlen=HISTORY)   # (q, observation, loglik at the estimate) of frames used
         self.challenges = self.switches = 0
+        self.blind = 0               # frames in a row the estimate saw nothing of (no detections, or none explained)
         self.used = 0                # frames used since the last start (the challenge's schedule)
         self.evidence: deque = deque(maxlen=EVIDENCE)   # (q, observation) of the latest frames explained
         self.vetoed = 0              # candidates the lock's own frames refused
@@ -262,7 +268,7 @@ class SearchInit:
             self.monitor.reset()
         self.candidate = None
         self.rejected = False
-        self.unused = self.lock_run = self.reject_run = 0
+        self.unused = self.lock_run = self.reject_run = self.blind = 0
         self.evidence.clear()
         self._restart_challenge()
 
@@ -278,6 +284,7 @@ class SearchInit:
         self.rejected, self.misfit = False, float("nan")
         self.unused += 1
         if not informative:
+            self.blind += 1
             if self.since is not None:
                 self.since += 1
             return None
@@ -291,6 +298,9 @@ class SearchInit:
             return self._adopt(self._search(q, observation, np.zeros(6)))
         ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
         m_cur = self.misfit = misfit(ll_cur, floor)
+        self.blind = self.blind + 1 if not m_cur < BLIND_MISFIT else 0
+        if self.blind >= self.gap:
+            self.evidence.clear()   # the lock's frames are as old as after a gap: E has moved with the arm
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
         after_gap = self.since >= self.gap and not m_cur <= self.threshold \
             and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
