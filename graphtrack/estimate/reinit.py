@@ -18,12 +18,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   on which the prediction explains little (misfit above the monitor's
   threshold, also at the search's coarse pixel sigma ``COARSE_SIGMA``: the tool
   moved while unseen) nothing is locked: x_c becomes a candidate for the test
-  below, without the lock's covariance gate, and the window challenge's schedule
-  restarts (its searches 8 and 16 frames after the gap). One frame cannot decide
-  here either: the tool re-enters the view an edge at a time, and a mode fit to
-  one line is set along the directions that line does not see by the hand-eye
-  prior (docs/decisions/after-a-gap.md). A prediction that still fits keeps its
-  lock (the monitor watches it).
+  below, without the lock's covariance gate, and the window challenge restarts (8 and
+  16 frames after the gap). One frame cannot decide: the tool re-enters an edge at a
+  time, and a mode fit to one line is set by the prior along what that line does not
+  see (docs/decisions/after-a-gap.md). A prediction that still fits keeps its lock.
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -37,38 +35,30 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   candidate still ahead on the last of those frames; the search then runs again on
   that frame around x_c and its mode is adopted. A single frame cannot decide (an
   occluder's edges can win one; as the tool moves and the occluder does not, they lose).
-  The test has that power only once the tool has moved: it runs on (the
-  threshold confirm * margin becoming frames * margin) until the candidate's
-  projected shaft lines, x_c held fixed and the readings changing, have moved
-  ``min_motion`` px from where they were on its first frame (max over the two
-  edges of |d rho| + |d theta| times the half image diagonal; default twice
-  the likelihood's outlier floor, 2 * 3 * 2 px, beyond which a static occluder's
-  edges no longer count for the candidate), or ``gap`` frames have passed.
-  A confirmed candidate is still vetoed when the lock's *evidence*, the latest
-  ``EVIDENCE`` frames the estimate explained (misfit <= ``lock_threshold``; none kept
-  across a gap or an adoption), scores it below the current estimate by more than
-  ``margin`` nats per frame: with E nearly constant, such a mode is an occluder's
-  (docs/decisions/lock-evidence.md). The evidence is dropped, as after a gap, once
-  ``gap`` frames in a row showed nothing of the tool at the estimate: no detections, or
-  detections none of which it explains (misfit >= ``BLIND_MISFIT``: a detector's false
-  edges while the tool is out of view); E moves with the arm meanwhile.
-- Innovation gate: while *locked* (``lock_frames`` consecutive frames the
-  estimator used were explained, misfit <= ``lock_threshold``; before a lock, a
-  frame with a misfit between that and the threshold neither extends nor ends
-  one; ``gap`` or more frames without detections end it: E drifts with the arm's
-  configuration while the tool is unseen, so the lock is earned again,
-  docs/decisions/lock-after-a-gap.md), a frame that the lock does not explain as well as it explained those
-  (misfit at the current estimate above ``lock_threshold``) is an outlier frame
-  (``rejected``): the estimator predicts through it without its detections
-  (docs/decisions/gate-at-lock-threshold.md); the monitor still sees the rejected
-  frames' misfits, and the candidate test above replaces a lost lock. While
+  The test has that power only once the tool has moved: it runs on (its threshold
+  becoming frames * margin) until x_c's shaft lines, x_c fixed and the readings
+  changing, have moved ``min_motion`` px since its first frame (max over the edges of
+  |d rho| + |d theta| times the half image diagonal; default 2 * 3 * 2 px, twice the
+  outlier floor, beyond which a static occluder's edges stop counting), or ``gap`` frames.
+  A confirmed candidate is vetoed when the lock's *evidence*, the latest ``EVIDENCE``
+  frames the estimate explained (misfit <= ``lock_threshold``), scores it below the
+  current estimate by more than ``margin`` nats per frame: with E nearly constant, such
+  a mode is an occluder's (docs/decisions/lock-evidence.md). None is kept across an
+  adoption or ``gap`` frames that showed nothing of the tool at the estimate (no
+  detections, or none it explains: misfit >= ``BLIND_MISFIT``); E moves with the arm.
+- Innovation gate: while *locked* (``lock_frames`` consecutive frames the estimator
+  used were explained, misfit <= ``lock_threshold``; before a lock, a frame with a
+  misfit between that and the threshold neither extends nor ends one; ``gap`` frames
+  without detections end it, as E drifts with the arm while the tool is unseen,
+  docs/decisions/lock-after-a-gap.md), a frame the lock does not explain as well as
+  those (misfit above ``lock_threshold``) is an outlier frame (``rejected``): the
+  estimator predicts through it (docs/decisions/gate-at-lock-threshold.md); the monitor
+  still sees its misfit, and the candidate test above replaces a lost lock. While
   locked, a candidate must also pass the lock's covariance gate
   (:meth:`SearchInit.near_lock`: E is nearly constant, so a well-explained lock
   does not jump 10 mm to an occluder's edges; the gate never closes below
   ``LOCK_FLOOR`` of the prior's spread, so a lock can still be corrected by a
-  few mm). After ``gap`` consecutive outlier frames the gate opens (a lock that
-  explains nothing for that long may be the wrong one); the candidate test
-  still decides.
+  few mm); it opens after ``gap`` outlier frames in a row (such a lock may be wrong).
 - Prior guard: an estimate outside the hand-eye prior's region (as the
   ``prior_gate`` above) has run away (the lumped error never leaves it): the
   search is run around the prior's centre and its mode adopted at once.
