@@ -210,7 +210,7 @@ class SearchInit:
 
     def _contradicts_evidence(self, xc: np.ndarray, x_cur: np.ndarray) -> bool:
         """The candidate xc explains the lock's evidence (the latest frames the estimate
-        explained, none since a gap or an adoption) worse than the current estimate x_cur
+        explained, none across a gap, an adoption or ``gap`` blind frames) worse than x_cur
         by more than ``margin`` nats per frame: E is nearly constant, so a mode that the
         frames before a run of unexplained ones contradict is an occluder's, not the tool's."""
         if not self.evidence:
