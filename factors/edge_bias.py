@@ -1,10 +1,11 @@
-"""The detector's edge bias: a slowly varying state per projected limb.
+"""The detector's edge bias: a slowly varying state per projected limb and the shaft's end.
 
 A line detector errs by the whole edge, by nearly the same amount from frame to
-frame (why this is a state, with measurements: docs/decisions/edge-bias-state.md).
+frame (why this is a state, with measurements: docs/decisions/edge-bias-state.md),
+and an end detector by the same amount along the shaft (docs/decisions/end-offset-state.md).
 Each frame k carries, next to E_k, the bias vector (px)
 
-    b_k = (l, l_s, w, w_s)
+    b_k = (l, l_s, w, w_s, e)
 
 lateral offset l and slope l_s (both edges shifted the same way in the image) and
 width offset w and slope w_s (both moved the same way relative to the shaft: a
@@ -20,6 +21,8 @@ centroid, a slope per 100 px of edge. R is the signed distance to limb i's line
 (A, B, C)(E) as :func:`graphtrack.geometry.cylinder.limb_line_coefficients` orients
 it, both normals into the shaft's image: a lateral shift is +l on limb 0 and -l on
 limb 1 (sgn = +1, -1); w > 0 moves both edges inwards (a narrower image).
+The end offset e (px along the shaft's image, towards the wrist) is where the
+detected shaft end lies from the modelled one (:mod:`factors.shaft_end`).
 
 Over time b is a first-order Gauss-Markov process with stationary standard
 deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
@@ -38,8 +41,10 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-#: the bias vector's dimension: (lateral offset, lateral slope, width offset, width slope)
-BIAS_DIM = 4
+#: the bias vector's dimension: (lateral offset, lateral slope, width offset, width slope, end offset)
+BIAS_DIM = 5
+#: the index of the shaft end's offset e in the bias vector
+END_OFFSET = 4
 #: sgn_i of the lateral terms on limb i
 LATERAL_SIGN = (1.0, -1.0)
 #: px of edge over which the slope s_i is the offset change
@@ -51,9 +56,10 @@ def bias_key(k: int) -> int:
     return gtsam.symbol("b", int(k))
 
 
-def bias_sigmas(lateral: float, lateral_slope: float, width: float, width_slope: float) -> np.ndarray:
-    """The stationary standard deviations (4,) of b = (l, l_s, w, w_s), px."""
-    return np.array([lateral, lateral_slope, width, width_slope], float)
+def bias_sigmas(lateral: float, lateral_slope: float, width: float, width_slope: float,
+                end: float) -> np.ndarray:
+    """The stationary standard deviations (5,) of b = (l, l_s, w, w_s, e), px."""
+    return np.array([lateral, lateral_slope, width, width_slope, end], float)
 
 
 def reference_direction(E_ref: np.ndarray, p0: np.ndarray, d: np.ndarray, K: np.ndarray) -> np.ndarray | None:
@@ -86,15 +92,15 @@ def bias_coefficients(pixels: np.ndarray, direction: np.ndarray | None = None) -
 
 
 def limb_bias(b: np.ndarray, limb: int) -> np.ndarray:
-    """(offset, slope) (2,) of limb ``limb``'s edge for b = (l, l_s, w, w_s)."""
+    """(offset, slope) (2,) of limb ``limb``'s edge for b = (l, l_s, w, w_s, e)."""
     b = np.asarray(b, float)
     return b[2:4] + LATERAL_SIGN[limb] * b[0:2]
 
 
 def limb_bias_jacobian(limb: int) -> np.ndarray:
-    """d(offset, slope)/db (2, 4) of :func:`limb_bias`."""
+    """d(offset, slope)/db (2, 5) of :func:`limb_bias`."""
     g = LATERAL_SIGN[limb]
-    return np.array([[g, 0.0, 1.0, 0.0], [0.0, g, 0.0, 1.0]])
+    return np.array([[g, 0.0, 1.0, 0.0, 0.0], [0.0, g, 0.0, 1.0, 0.0]])
 
 
 def bias_prior_factor(k: int, sigmas: np.ndarray):

@@ -105,7 +105,7 @@ class LineParameterError(PoseBiasErrorFunction):
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True, b: np.ndarray | None = None):
         """Unwhitened residual (d_rho px, d_theta rad) and its Jacobian: (2, 6) d/dxi, or
-        with the bias state (b given; required then) (2, 10) [d/dxi, d/db]."""
+        with the bias state (b given; required then) (2, 6 + BIAS_DIM) [d/dxi, d/db]."""
         if self.on_bias != (b is not None):
             raise ValueError("LineParameterError: b must be given exactly when the factor is on the edge-bias state")
         ncols = 6 if b is None else 6 + BIAS_DIM

@@ -83,8 +83,8 @@ class ShaftPixelsError(PoseBiasErrorFunction):
 
     def evaluate(self, E: np.ndarray, jacobian: bool = True, b: np.ndarray | None = None):
         """Residual e (m,) and its Jacobian (None without ``jacobian``) at 4x4 E:
-        de/dxi (m, 6), or with the bias vector b (4,) (``bias=True``) the
-        (m, 10) [de/dxi, de/db]."""
+        de/dxi (m, 6), or with the bias vector b (BIAS_DIM,) (``bias=True``) the
+        (m, 6 + BIAS_DIM) [de/dxi, de/db]."""
         m = self.dim
         ncols = 6 if b is None else 6 + BIAS_DIM
         L, dL, valid = self.pairing.lines(E, self.axis, self.M, jacobian)

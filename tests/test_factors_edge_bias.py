@@ -5,7 +5,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors.edge_bias import (SLOPE_SCALE, BiasTransitionError, bias_coefficients, bias_key,
+from factors.edge_bias import (BIAS_DIM, END_OFFSET, SLOPE_SCALE, BiasTransitionError, bias_coefficients, bias_key,
                                bias_sigmas, bias_transition_factor, limb_bias, reference_direction,
                                transition)
 from factors.limb import LimbPairing
@@ -72,7 +72,7 @@ def test_lateral_and_width_terms_by_hand(scene):
     L = limb_line_coefficients(f.E_true, axis, line_matrix(cam.K), False)[0]
     n = L[:, :2] / np.hypot(L[:, 0], L[:, 1])[:, None]
     assert n[0] @ n[1] < -0.99
-    b = np.array([0.5, 0.2, 0.1, -0.3])
+    b = np.array([0.5, 0.2, 0.1, -0.3, 0.9])     # the end offset (last) is no limb's
     assert np.allclose(limb_bias(b, 0), [0.6, -0.1]) and np.allclose(limb_bias(b, 1), [-0.4, -0.5])
 
 
@@ -103,23 +103,24 @@ def test_biased_pixels_jacobians(scene, kernel):
     pairing = LimbPairing()
     fns = [ShaftPixelsError(px, axis, cam.K, 1.5, kernel, pairing, bias=True) for px in f.pixels[:2]]
     plain = ShaftPixelsError(f.pixels[0], axis, cam.K, 1.5, kernel)
-    b = np.array([0.7, -0.4, -1.1, 0.3])
+    b = np.array([0.7, -0.4, -1.1, 0.3, 0.8])
     for E in (f.E_true, E0):
         pose = gtsam.Pose3(E)
         for fn in fns:
             e, J = fn.evaluate(E, True, b)
-            assert J.shape == (len(e), 10)
+            assert J.shape == (len(e), 6 + BIAS_DIM)
+            assert np.all(J[:, 6 + END_OFFSET] == 0)      # the end offset is the shaft end's
             Jn = _central_differences(fn, pose, b)
             tol = 2e-6 if kernel == "huber" else 1e-6
             assert np.max(np.abs(J - Jn)) <= tol * np.max(np.abs(Jn))
-    e0 = fns[0].evaluate(E0, False, np.zeros(4))[0]
+    e0 = fns[0].evaluate(E0, False, np.zeros(BIAS_DIM))[0]
     assert np.allclose(e0, plain.evaluate(E0, False)[0])
     if kernel == "none":
         fn = fns[0]
         fn.evaluate(E0, False)
         sgn = 1.0 if fn.limb == 0 else -1.0
-        lateral = np.array([2.0, 0.5, 0.0, 0.0])
-        width = np.array([0.0, 0.0, 2.0, 0.5])
+        lateral = np.array([2.0, 0.5, 0.0, 0.0, 0.0])
+        width = np.array([0.0, 0.0, 2.0, 0.5, 0.0])
         expect = e0 - (2.0 + 0.5 * fn.C[:, 1]) / 1.5
         assert np.allclose(fn.evaluate(E0, False, width)[0], expect)
         assert np.allclose(fn.evaluate(E0, False, lateral)[0], e0 - sgn * (2.0 + 0.5 * fn.C[:, 1]) / 1.5)
@@ -132,21 +133,21 @@ def test_gtsam_wrapper_has_both_keys(scene):
     assert list(fac.keys()) == [x, b]
     v = gtsam.Values()
     v.insert(x, gtsam.Pose3(E0))
-    v.insert(b, np.zeros(4))
+    v.insert(b, np.zeros(BIAS_DIM))
     gf = fac.linearize(v)
-    assert gf.jacobian()[0].shape == (len(f.pixels[0]), 10)
+    assert gf.jacobian()[0].shape == (len(f.pixels[0]), 6 + BIAS_DIM)
 
 
 def test_transition_by_hand():
     """phi = exp(-dt / tau); e = (b_k - phi b_{k-1}) / (sigma sqrt(1 - phi^2)), constant Jacobians."""
-    sig = bias_sigmas(1.0, 0.5, 0.3, 0.2)
-    assert np.allclose(sig, [1.0, 0.5, 0.3, 0.2])
+    sig = bias_sigmas(1.0, 0.5, 0.3, 0.2, 0.7)
+    assert np.allclose(sig, [1.0, 0.5, 0.3, 0.2, 0.7])
     phi = transition(1 / 30, 2.0)
     assert phi == pytest.approx(np.exp(-1 / 60))
     assert transition(0.1, 0.0) == 0.0          # independent in every frame
     assert transition(0.1, np.inf) == 1.0       # constant
     fn = BiasTransitionError(phi, sig)
-    a, c = np.array([1.0, 2.0, -1.0, 0.0]), np.array([1.1, 1.9, -0.5, 0.2])
+    a, c = np.array([1.0, 2.0, -1.0, 0.0, 0.4]), np.array([1.1, 1.9, -0.5, 0.2, 0.3])
     q = sig * np.sqrt(1 - phi ** 2)
     assert np.allclose(fn.evaluate(a, c), (c - phi * a) / q)
     v = gtsam.Values()
@@ -154,7 +155,8 @@ def test_transition_by_hand():
     v.insert(bias_key(4), c)
     gf = bias_transition_factor(3, 4, phi, sig).linearize(v)
     A = gf.jacobian()[0]
-    assert np.allclose(A[:, :4], -phi * np.diag(1 / q)) and np.allclose(A[:, 4:], np.diag(1 / q))
+    n = BIAS_DIM
+    assert np.allclose(A[:, :n], -phi * np.diag(1 / q)) and np.allclose(A[:, n:], np.diag(1 / q))
 
 
 @pytest.mark.parametrize("every", [1, 5])
@@ -245,14 +247,14 @@ def test_biased_line_parameter_jacobians(scene, E_name):
                               direction=direction)
            for i in range(2)]
     plain = [LineParameterError(f.lines[i], axis, cam.K, *LINE_SIGMAS, pairing=LimbPairing()) for i in range(2)]
-    b = np.array([0.7, -0.4, -1.1, 0.3])
+    b = np.array([0.7, -0.4, -1.1, 0.3, 0.8])
     for fn, pl in zip(fns, plain):
         r, J = fn.evaluate(E, True, b)
-        assert J.shape == (2, 10)
+        assert J.shape == (2, 6 + BIAS_DIM)
         Jn = _central_differences(fn, pose, b)
         for row in range(2):
             assert np.max(np.abs(J[row] - Jn[row])) <= 1e-6 * np.max(np.abs(Jn[row]))
-        assert np.allclose(fn.evaluate(E, False, np.zeros(4))[0], pl.evaluate(E, False)[0], atol=1e-9)
+        assert np.allclose(fn.evaluate(E, False, np.zeros(BIAS_DIM))[0], pl.evaluate(E, False)[0], atol=1e-9)
 
 
 def _moved_line(L: np.ndarray, offset: float, slope: float, direction: np.ndarray, c: np.ndarray):
@@ -284,7 +286,7 @@ def test_biased_line_matches_a_moved_limb(scene):
     robot, cam, E0, f, axis = scene
     L = limb_line_coefficients(f.E_true, axis, line_matrix(cam.K), False)[0]
     direction = reference_direction(E0, axis.p0, axis.d, cam.K)
-    b = np.array([0.4, -0.8, 1.5, 0.6])                # (l, l_s, w, w_s)
+    b = np.array([0.4, -0.8, 1.5, 0.6, 0.0])           # (l, l_s, w, w_s, e)
     for i in range(2):
         o, s = limb_bias(b, i)
         line = _moved_line(L[i], o, s, direction, cam.K[:2, 2])
@@ -292,7 +294,7 @@ def test_biased_line_matches_a_moved_limb(scene):
         r, _ = fn.evaluate(f.E_true, False, b)
         assert fn.limb == i
         assert abs(r[0]) < 1e-3 and abs(r[1]) < 1e-5
-        r0, _ = fn.evaluate(f.E_true, False, np.zeros(4))
+        r0, _ = fn.evaluate(f.E_true, False, np.zeros(BIAS_DIM))
         assert abs(r0[0]) > 0.5 or abs(r0[1]) > 1e-3
 
 

@@ -98,3 +98,42 @@ def test_particle_filter_projection_and_term_agree_with_the_factor(scene):
         assert ll[n] == pytest.approx(max(-0.5 * z * z, -4.5))
     # no detected end: no term
     assert om.shaft_end_loglik(h.end_u, h.end_v, Observation("line-intensities")) == 0.0
+
+
+@pytest.mark.parametrize("kernel", ["none", "huber"])
+def test_end_offset_state(scene, kernel):
+    """On (E, b): z = (d . (pi(P) - p) + e) / sigma with e = b[END_OFFSET], the detected end
+    p = pi(P) + e d; the Jacobian against central differences in E and b, and the
+    gtsam.CustomFactor on both keys linearises to it."""
+    from factors.edge_bias import BIAS_DIM, END_OFFSET, bias_key
+
+    robot, cam, E0, f, F, centre = scene
+    E = f.E_true
+    fn = _error(scene, (3.0, 0.0), kernel)        # detected 3 px towards the wrist
+    fn.on_bias = True
+    b = np.zeros(BIAS_DIM)
+    b[END_OFFSET] = 3.0                            # the state explains the offset
+    assert abs(fn.evaluate(E, False, b)[0][0]) < 1e-9
+    b[END_OFFSET] = 1.0
+    if kernel == "none":
+        assert fn.evaluate(E, False, b)[0][0] == pytest.approx(-1.0, abs=1e-9)   # (-3 + 1) / 2
+    b = np.array([0.3, -0.2, 0.5, 0.1, 1.2])
+    pose = gtsam.Pose3(E).retract(np.array([1e-3, -5e-4, 2e-4, 5e-4, 1e-4, -2e-4]))
+    _, J = fn.evaluate(pose.matrix(), True, b)
+    assert J.shape == (1, 6 + BIAS_DIM)
+    num = _numerical(lambda P: fn.evaluate(P.matrix(), False, b)[0], pose)
+    np.testing.assert_allclose(J[:, :6], num, rtol=1e-5, atol=1e-6)
+    h = 1e-5
+    for k in range(BIAS_DIM):
+        d = np.zeros(BIAS_DIM)
+        d[k] = h
+        nk = (fn.evaluate(pose.matrix(), False, b + d)[0] - fn.evaluate(pose.matrix(), False, b - d)[0]) / (2 * h)
+        assert J[0, 6 + k] == pytest.approx(nk[0], abs=1e-6)
+    x, bk = gtsam.symbol("x", 0), bias_key(0)
+    fac = shaft_end_factor(x, fn.p, fn.d, fn.c_b, fn.a_b, fn.r, cam.K, fn.sigma, kernel, None, bk)
+    assert list(fac.keys()) == [x, bk]
+    v = gtsam.Values()
+    v.insert(x, pose)
+    v.insert(bk, b)
+    gf = fac.linearize(v)
+    np.testing.assert_allclose(gf.jacobian()[0], J, rtol=1e-9, atol=1e-12)

@@ -92,11 +92,12 @@ class FactorOptions:
     band_weight: the weight of the pixel set of an edge the detector's refinement did
     not move onto the image's edge (``Observation.bands``), times the above.
     edge_bias: carry the detector's edge-bias vector b = (lateral, lateral slope,
-    width, width slope) px (:mod:`factors.edge_bias`), a Gauss-Markov process with
-    stationary stds edge_bias_sigma_lateral / _lateral_slope / _width /
-    _width_slope (px) and time constant edge_bias_tau (s), one vector per
-    edge_bias_every frames. Pixel sets are on it; so are the polar models' lines
-    (the smoother's only once settled, ``line_bias`` of :func:`frame_factor_groups`).
+    width, width slope, end offset) px (:mod:`factors.edge_bias`), a Gauss-Markov process
+    with stationary stds edge_bias_sigma_lateral / _lateral_slope / _width /
+    _width_slope / _end (px) and time constant edge_bias_tau (s), one vector per
+    edge_bias_every frames. Pixel sets are on it; so are the polar models' lines (the
+    smoother's only once settled, ``line_bias`` of :func:`frame_factor_groups`) and, in
+    stereo frames, the shaft end (``end_offset``).
     shaft_end_sigma (px) / shaft_end_robust: the detected shaft end's residual along
     the shaft's image and its kernel (:mod:`factors.shaft_end`; Huber at 1.345 sigma,
     as the other factors: a false end pulls with a bounded force).
@@ -123,6 +124,7 @@ class FactorOptions:
     edge_bias_sigma_lateral_slope: float = 0.3
     edge_bias_sigma_width: float = 1.5
     edge_bias_sigma_width_slope: float = 1.5
+    edge_bias_sigma_end: float = 1.0
     edge_bias_tau: float = 2.0
     edge_bias_every: int = 5
     shaft_end_sigma: float = END_SIGMA
@@ -140,7 +142,8 @@ class FactorOptions:
     @property
     def edge_bias_sigmas(self) -> np.ndarray:
         return bias_sigmas(self.edge_bias_sigma_lateral, self.edge_bias_sigma_lateral_slope,
-                           self.edge_bias_sigma_width, self.edge_bias_sigma_width_slope)
+                           self.edge_bias_sigma_width, self.edge_bias_sigma_width_slope,
+                           self.edge_bias_sigma_end)
 
 
 def edge_bias_factors(k: int, dt: float | None, opts: FactorOptions) -> list:
@@ -162,7 +165,8 @@ def frame_factors(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
 def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray,
                         opts: FactorOptions,
                         E_ref: np.ndarray | None = None, pose_key: int | None = None,
-                        line_bias: bool = True, extrinsic: np.ndarray | None = None) -> tuple[list, list]:
+                        line_bias: bool = True, extrinsic: np.ndarray | None = None,
+                        end_offset: bool = False) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
@@ -179,6 +183,8 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     right_T_left, with K its K2, E_ref its camera's right_T_left . E_0;
     :mod:`factors.error_function`). Its edges are on the same edge-bias vector as the
     left image's (:mod:`graphtrack.estimate.stereo` says why).
+    ``end_offset``: with the edge-bias state, whether the shaft end is on its end offset
+    e (stereo frames: :mod:`graphtrack.estimate.stereo` says why); else e = 0.
     """
     if observation is None:
         return [], []
@@ -220,7 +226,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                                         extrinsic)
                 if f is not None:
                     out.append(f)
-        out += _end_factors(x, observation, robot, q, F, K, opts, extrinsic)
+        out += _end_factors(x, observation, robot, q, F, K, opts, extrinsic, b if end_offset else None)
     if want_markers and len(F.points):
         mk = np.asarray(observation.markers, float).reshape(-1, 2)
         mk = mk[np.all(np.isfinite(mk), axis=1)]
@@ -232,14 +238,15 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     return out, []
 
 
-def _end_factors(x: int, observation, robot, q, F, K, opts: FactorOptions, extrinsic) -> list:
-    """The shaft-end factor of a frame whose observation has a detected end (else none)."""
+def _end_factors(x: int, observation, robot, q, F, K, opts: FactorOptions, extrinsic, b) -> list:
+    """The shaft-end factor of a frame whose observation has a detected end (else none),
+    on the end offset of the edge-bias vector ``b`` (a key; None: without the state)."""
     end = np.asarray(observation.shaft_end, float).reshape(-1, 4)
     sf = robot.shaft_features[0]
     if len(end) == 0 or sf.end is None:
         return []
     return [shaft_end_factor(x, end[0, :2], end[0, 2:], F.shaft_end[0], F.shaft_d[0], F.shaft_r[0], K,
-                             opts.shaft_end_sigma, make_kernel(opts.shaft_end_robust), extrinsic)]
+                             opts.shaft_end_sigma, make_kernel(opts.shaft_end_robust), extrinsic, b)]
 
 
 def split_options(options: dict) -> tuple[FactorOptions, dict]:

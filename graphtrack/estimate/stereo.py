@@ -21,6 +21,14 @@ The right image's edges are on the SAME edge-bias vector b_j as the left's
 camera's reference direction): the same detector on two nearly identical views
 errs alike, and a shared vector cannot absorb the disparity (an offset common to
 both images does not change it). Measurements: docs/decisions/stereo-edge-bias.md.
+
+In a stereo frame the shaft end (in both images) is on the edge-bias vector's end
+offset e too (:mod:`factors.shaft_end`): an end detector errs along the shaft by
+nearly the same amount in every frame, and with the disparity fixing the depth, that
+error, averaged over frames as if it were white, became the largest in the 3-D tip.
+A mono frame keeps e = 0: there the end is what holds the depth / width-bias ridge
+that the edge-bias state leaves loose, and with e free the estimate drifts along it
+(docs/decisions/end-offset-state.md).
 """
 from __future__ import annotations
 
@@ -35,13 +43,16 @@ def stereo_factor_groups(k: int, q: np.ndarray, observation, right, ctx, K: np.n
     """The measurement factors of frame k from both images as (shaft factors, marker
     factors): :func:`graphtrack.estimate.graph.frame_factor_groups` of the left
     ``observation`` (camera K), then, when ``right`` is given and ``ctx`` is stereo,
-    those of the right observation through ctx.right's K2 and ctx.right_T_left. A
-    frame without a right observation (missing or corrupt right image) is left-only."""
-    shaft, markers = frame_factor_groups(k, q, observation, ctx.robot, K, opts, E_ref, pose_key, line_bias)
-    if right is not None and ctx.stereo:
+    those of the right observation through ctx.right's K2 and ctx.right_T_left, both
+    images' shaft ends on the end offset (module doc). A frame without a right
+    observation (missing or corrupt right image) is left-only."""
+    both = right is not None and ctx.stereo
+    shaft, markers = frame_factor_groups(k, q, observation, ctx.robot, K, opts, E_ref, pose_key, line_bias,
+                                         end_offset=both)
+    if both:
         ref = None if E_ref is None else ctx.right_T_left @ np.asarray(E_ref, float)
         rs, rm = frame_factor_groups(k, q, right, ctx.robot, np.asarray(ctx.right.K, float), opts,
-                                     ref, pose_key, line_bias, extrinsic=ctx.right_T_left)
+                                     ref, pose_key, line_bias, extrinsic=ctx.right_T_left, end_offset=True)
         shaft, markers = shaft + rs, markers + rm
     return shaft, markers
 
