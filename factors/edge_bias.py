@@ -2,7 +2,8 @@
 
 A line detector errs by the whole edge, by nearly the same amount from frame to
 frame (why this is a state, with measurements: docs/decisions/edge-bias-state.md),
-and an end detector by the same amount along the shaft (docs/decisions/end-offset-state.md).
+and an end detector by the same amount along the shaft (docs/decisions/end-offset-state.md;
+the end is on the state in stereo frames only).
 Each frame k carries, next to E_k, the bias vector (px)
 
     b_k = (l, l_s, w, w_s, e)
@@ -25,7 +26,7 @@ The end offset e (px along the shaft's image, towards the wrist) is where the
 detected shaft end lies from the modelled one (:mod:`factors.shaft_end`).
 
 Over time b is a first-order Gauss-Markov process with stationary standard
-deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws) and time constant tau:
+deviations sigma = (sigma_l, sigma_ls, sigma_w, sigma_ws, sigma_e) and time constant tau:
 
     b_0 ~ N(0, diag(sigma^2)),
     b_k = phi b_{k-1} + w_k,  phi = exp(-dt / tau),  w_k ~ N(0, (1 - phi^2) diag(sigma^2))
