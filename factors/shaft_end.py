@@ -10,12 +10,13 @@ residual is the offset along the shaft's image,
     z = (d . (pi(P) - p) + e) / sigma                                (1 per frame)
 
 (across the shaft the silhouette lines already say where it is), e the end offset of
-the frame's edge-bias vector b (:mod:`factors.edge_bias`, its component ``END_OFFSET``;
-in stereo frames; e = 0 in mono ones or without the state): the detected end p = pi(P) + e d + noise. An end detector
-errs along the shaft by nearly the same amount in every frame (where the dark shaft
-meets the wrist's shading and blur), so e is a slowly varying state, not white noise:
-the end fixes the slide to within e's spread, not to sigma / sqrt(frames)
-(docs/decisions/end-offset-state.md). Robustified on |z| (:mod:`factors.robust`).
+the frame's edge-bias vector b in stereo frames (:mod:`factors.edge_bias`, its component
+``END_OFFSET``; e = 0 in mono frames or without the state): the detected end
+p = pi(P) + e d + noise. An end detector errs along the shaft by nearly the same amount
+in every frame (where the dark shaft meets the wrist's shading and blur), so e is a
+slowly varying state, not white noise: the end fixes the slide to within e's spread,
+not to sigma / sqrt(frames) (docs/decisions/end-offset-state.md). Robustified on |z|
+(:mod:`factors.robust`).
 
 Analytic Jacobian, xi = (omega, v), gtsam's right perturbation E Exp(xi):
 
