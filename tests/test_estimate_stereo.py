@@ -213,3 +213,28 @@ def test_stereo_end_offset_state_absorbs_a_persistent_end_error():
     held0, free0 = _end_offset_slide(0.0, 1e-3), _end_offset_slide(0.0)
     assert held - held0 > 0.2, (held, held0)                      # mm
     assert free - free0 < 0.4 * (held - held0), (free, free0, held, held0)
+
+
+def test_end_factor_is_on_the_end_offset_in_stereo_frames_only():
+    """Mono frames keep e = 0 (their end factor is on E alone, where it holds the depth ridge);
+    a stereo frame's two end factors are on (E, b); a stereo rig's frame whose right image is
+    missing is a mono frame."""
+    from factors.edge_bias import bias_key
+    from graphtrack.estimate.graph import FactorOptions, key
+    from graphtrack.estimate.stereo import stereo_factor_groups
+
+    robot, cam, E0 = make_scene(width=960, height=540, f=1000.0)
+    right, C = right_rig(cam)
+    robot, cam, E0, frames = sequence(1, seed=3, scene=(robot, cam, E0), shaft_end_noise=0.5)
+    f = frames[0]
+    ro = observe(Scene(robot, right, E0), f.q, C @ f.E_true, np.random.default_rng(0), shaft_end_noise=0.5)
+    ctx = TrackingContext(robot, cam, E0, right, C)
+    opts = FactorOptions()
+
+    def end_keys(right_obs):
+        shaft, _ = stereo_factor_groups(0, f.q, f.observation(), right_obs, ctx, cam.K, opts, E0)
+        return [list(g.keys()) for g in shaft if len(g.keys()) and g.dim() == 1]
+
+    x, b = key(0), bias_key(0)
+    assert end_keys(None) == [[x]]
+    assert end_keys(ro.observation()) == [[x, b], [x, b]]
