@@ -46,6 +46,10 @@ covers (Scene.flap_mask). Frames are
   of view): ``false`` = fraction of them where the detector reports any shaft
   line (free; gated with the true lines, when they exist, as prediction);
 - the rest (one edge short or missing) are only counted (``marginal``).
+
+Contrast sweep (``results["detect"]["randomized"][detector]["contrast"]``): every
+clear frame again, free mode, with its contrast scaled down
+(:mod:`contrast_sweep`): a dark shaft on dark tissue, however a renderer makes one.
 """
 from __future__ import annotations
 
@@ -62,6 +66,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # runnable from a checkout
+sys.path.insert(0, str(Path(__file__).resolve().parent))      # its helper modules
+
+from contrast_sweep import contrast_table, sweep_frame  # noqa: E402
 
 FRAMES = 200
 SEEDS = {"structured": 7, "tissue": 8}
@@ -204,6 +211,7 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
     from graphtrack.sim.simulate import Simulation
 
     acc: dict = {}
+    sweep: dict = {}
     counts = {c: 0 for c in ("clear", "occluded", "absent", "marginal")}
     for scene in SCENES:
         for k in range(recordings):
@@ -218,6 +226,8 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                 raw = sim.render(i)[0]
                 rho, th, ok = shaft_lines(base_features(sim.robot, sim.q_read[i]).transformed(sim.E_t[i]), cam.K)
                 pred = np.stack([rho + rng.normal(0, 5.0, 2), th + rng.normal(0, 0.03, 2)], 1) if ok else None
+                if cat == "clear":
+                    sweep_frame(dets, sweep, sim, i, raw, rho, th, HELD_OUT + k, _errors, _both)
                 for name, det in dets.items():
                     for mode, p in (("free", None), ("gated", pred)):
                         if mode == "gated" and p is None:
@@ -240,6 +250,10 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                else _summary(a))
         out.setdefault(name, {}).setdefault(cat, {})[mode] = fig
         log(f"{name:16s} {cat:9s} {mode:5s} " + json.dumps(fig))
+    for (name, c), a in sorted(sweep.items(), key=lambda kv: (kv[0][0], -kv[0][1])):
+        fig = {"c": c, **_summary(a), "edge_contrast": round(float(np.nanmedian(a["contrast"])), 1)}
+        out.setdefault(name, {}).setdefault("contrast", []).append(fig)
+        log(f"{name:16s} contrast x{c:<5} " + json.dumps(fig))
     return out
 
 
@@ -288,7 +302,10 @@ def run(results: dict, frames: int = FRAMES, sold2: str | None = None, log=print
             out["tables"] = {
                 "free mode: both-edges rate / median / p90 |d_rho| px": _table(std, out["randomized"]),
                 "free mode: line-intensities sets, median |offset| px carried / as the heatmap gives them "
-                "(median signed offset, + into the shaft)": _sets_table(std, out["randomized"])}
+                "(median signed offset, + into the shaft)": _sets_table(std, out["randomized"]),
+                "free mode, randomized clear frames, contrast about the frame's mean scaled by c, "
+                "+ N(0, 2^2) gray levels of noise: both-edges rate / median |d_rho| px":
+                    contrast_table(out["randomized"])}
     results["detect"] = out
     return out
 

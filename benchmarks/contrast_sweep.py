@@ -1,0 +1,94 @@
+"""The detection benchmark's contrast sweep (bench_detect.py): dark frames made from clear ones.
+
+Real endoscope frames show a dark shaft on dark tissue, where the step at the shaft's
+edge is a few gray levels. Every clear held-out frame is run again with its
+intensities' spread about the frame's mean m scaled by c in CONTRAST_SCALES and
+noise added, since the sensor's noise does not shrink with the scene's light:
+
+    I_c = clip(round(m + c (I - m) + n)),   n ~ N(0, SWEEP_NOISE^2)   (gray levels, per channel)
+
+independent of how a renderer darkens a scene. Each scaled frame's contrast is
+measured at the true edges (:func:`edge_contrast`), so a table row says at what
+edge contrast (gray levels) a detector still finds both edges.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+CONTRAST_SCALES = (0.5, 0.25, 0.125)   #: the sweep's scales (c = 1: the clear frames themselves)
+SWEEP_NOISE = 2.0                      #: gray levels of noise added to a contrast-scaled frame
+
+
+def edge_contrast(sim, i: int, raw: np.ndarray, offset: float = 3.0, samples: int = 24) -> float:
+    """The shaft's contrast with its background in the raw frame i (gray levels): per
+    true edge segment, the median over ``samples`` points along its middle 80 % of
+    |gray ``offset`` px outside - gray ``offset`` px inside| (sampled through the
+    lens distortion); the lower of the two edges. NaN without two edges in view."""
+    import cv2
+
+    from graphtrack.training.labels import shaft_edge_segments
+
+    cam = sim.camera
+    segs = shaft_edge_segments(sim.robot, sim.q_read[i], sim.E_t[i], cam.K, cam.height, cam.width)
+    if len(segs) != 2:
+        return float("nan")
+    gray = cv2.cvtColor(raw, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    t = np.linspace(0.1, 0.9, samples)[:, None]
+    out = []
+    for j in range(2):
+        a, b, other = segs[j, :2], segs[j, 2:], segs[1 - j]
+        d = (b - a) / np.linalg.norm(b - a)
+        n = np.array([-d[1], d[0]])
+        n = n if (0.5 * (other[:2] + other[2:]) - a) @ n >= 0 else -n     # into the shaft
+        p = a + t * (b - a)
+
+        def sample(q):
+            q = cam.distort_pixels(q).astype(np.float32).reshape(-1, 1, 2)
+            return cv2.remap(gray, q[..., 0], q[..., 1], cv2.INTER_LINEAR, borderValue=float("nan")).ravel()
+        out.append(float(np.nanmedian(np.abs(sample(p - offset * n) - sample(p + offset * n)))))
+    return min(out)
+
+
+def scale_contrast(raw: np.ndarray, c: float, rng) -> np.ndarray:
+    """``raw`` (uint8) with its intensities' spread about the frame's mean scaled by c,
+    plus N(0, SWEEP_NOISE^2) gray levels of noise, clipped to uint8."""
+    f = raw.astype(np.float32)
+    m = float(f.mean())
+    out = m + (f - m) * c + rng.normal(0.0, SWEEP_NOISE, f.shape)
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+def sweep_frame(dets: dict, acc: dict, sim, i: int, raw: np.ndarray, rho, th, seed: int, errors, both) -> None:
+    """The sweep of one clear frame (module doc), free mode, into ``acc`` {(detector, c): counts}:
+    ``errors(lines, rho, th)`` and ``both(errors)`` judge the detections against the true limb
+    lines (rho, th) as bench_detect.py does."""
+    from graphtrack.detect import detect_raw
+
+    for c in (1.0,) + CONTRAST_SCALES:
+        img = raw if c == 1.0 else scale_contrast(raw, c, np.random.default_rng([seed, i, int(c * 1000)]))
+        contrast = edge_contrast(sim, i, img)
+        for name, det in dets.items():
+            a = acc.setdefault((name, c), {"both": 0, "err": [], "ms": [], "n": 0, "contrast": []})
+            d = detect_raw(det, img, sim.camera, None)
+            e = errors(d.shaft_lines, rho, th)
+            a["n"] += 1
+            a["ms"].append(d.ms)
+            a["err"] += e
+            a["both"] += int(both(e))
+            a["contrast"].append(contrast)
+
+
+def contrast_table(rnd: dict) -> str:
+    """Markdown: the contrast sweep, free mode: both-edges rate / median |d_rho| px per scale."""
+    names = [n for n in rnd if isinstance(rnd[n], dict) and rnd[n].get("contrast")]
+    if not names:
+        return ""
+    first = rnd[names[0]]["contrast"]
+    rows = ["| detector | " + " | ".join(f"x{f['c']} (edge {f['edge_contrast']} gray levels)" for f in first) + " |",
+            "|" + "---|" * (len(first) + 1)]
+
+    def cell(f):
+        return f"{f['both']:.3f} / {'-' if f['rho_px'] is None else f['rho_px']}"
+    for n in names:
+        rows.append(f"| {n} | " + " | ".join(cell(f) for f in rnd[n]["contrast"]) + " |")
+    return "\n".join(rows)
