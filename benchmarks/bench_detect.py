@@ -48,7 +48,7 @@ covers (Scene.flap_mask). Frames are
 - the rest (one edge short or missing) are only counted (``marginal``).
 
 Contrast sweep (``results["detect"]["randomized"][detector]["contrast"]``): every
-clear frame again, free mode, with its contrast scaled down
+clear frame again, free mode, with its contrast scaled down about its mean and dimmed
 (:mod:`contrast_sweep`): a dark shaft on dark tissue, however a renderer makes one.
 """
 from __future__ import annotations
@@ -250,10 +250,10 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                else _summary(a))
         out.setdefault(name, {}).setdefault(cat, {})[mode] = fig
         log(f"{name:16s} {cat:9s} {mode:5s} " + json.dumps(fig))
-    for (name, c), a in sorted(sweep.items(), key=lambda kv: (kv[0][0], -kv[0][1])):
-        fig = {"c": c, **_summary(a), "edge_contrast": round(float(np.nanmedian(a["contrast"])), 1)}
+    for (name, mode, c), a in sweep.items():     # in SWEEP's order per detector
+        fig = {"mode": mode, "c": c, **_summary(a), "edge_contrast": round(float(np.nanmedian(a["contrast"])), 1)}
         out.setdefault(name, {}).setdefault("contrast", []).append(fig)
-        log(f"{name:16s} contrast x{c:<5} " + json.dumps(fig))
+        log(f"{name:16s} {mode:8s} x{c:<5} " + json.dumps(fig))
     return out
 
 
@@ -303,8 +303,8 @@ def run(results: dict, frames: int = FRAMES, sold2: str | None = None, log=print
                 "free mode: both-edges rate / median / p90 |d_rho| px": _table(std, out["randomized"]),
                 "free mode: line-intensities sets, median |offset| px carried / as the heatmap gives them "
                 "(median signed offset, + into the shaft)": _sets_table(std, out["randomized"]),
-                "free mode, randomized clear frames, contrast about the frame's mean scaled by c, "
-                "+ N(0, 2^2) gray levels of noise: both-edges rate / median |d_rho| px":
+                "free mode, randomized clear frames made darker (contrast about the frame's mean, or "
+                "light, x c; + N(0, 2^2) gray levels of noise): both-edges rate / median |d_rho| px":
                     contrast_table(out["randomized"])}
     results["detect"] = out
     return out

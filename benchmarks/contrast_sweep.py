@@ -1,11 +1,13 @@
 """The detection benchmark's contrast sweep (bench_detect.py): dark frames made from clear ones.
 
 Real endoscope frames show a dark shaft on dark tissue, where the step at the shaft's
-edge is a few gray levels. Every clear held-out frame is run again with its
-intensities' spread about the frame's mean m scaled by c in CONTRAST_SCALES and
-noise added, since the sensor's noise does not shrink with the scene's light:
+edge is a few gray levels. Every clear held-out frame is run again, made darker in two
+ways with noise added (the sensor's noise does not shrink with the scene's light), per
+channel, in gray levels:
 
-    I_c = clip(round(m + c (I - m) + n)),   n ~ N(0, SWEEP_NOISE^2)   (gray levels, per channel)
+    contrast (haze, flat light):  I_c = clip(round(m + c (I - m) + n))   (m: the frame's mean)
+    light (a dim scene):          I_c = clip(round(c I + n))
+                                  n ~ N(0, SWEEP_NOISE^2),  c in CONTRAST_SCALES
 
 independent of how a renderer darkens a scene. Each scaled frame's contrast is
 measured at the true edges (:func:`edge_contrast`), so a table row says at what
@@ -17,6 +19,8 @@ import numpy as np
 
 CONTRAST_SCALES = (0.5, 0.25, 0.125)   #: the sweep's scales (c = 1: the clear frames themselves)
 SWEEP_NOISE = 2.0                      #: gray levels of noise added to a contrast-scaled frame
+#: (mode, c) of every frame the sweep runs: the frame itself, then each scale both ways
+SWEEP = (("clear", 1.0),) + tuple((m, c) for m in ("contrast", "light") for c in CONTRAST_SCALES)
 
 
 def edge_contrast(sim, i: int, raw: np.ndarray, offset: float = 3.0, samples: int = 24) -> float:
@@ -49,26 +53,28 @@ def edge_contrast(sim, i: int, raw: np.ndarray, offset: float = 3.0, samples: in
     return min(out)
 
 
-def scale_contrast(raw: np.ndarray, c: float, rng) -> np.ndarray:
-    """``raw`` (uint8) with its intensities' spread about the frame's mean scaled by c,
-    plus N(0, SWEEP_NOISE^2) gray levels of noise, clipped to uint8."""
+def scale_contrast(raw: np.ndarray, c: float, rng, about_mean: bool = True) -> np.ndarray:
+    """``raw`` (uint8) with its intensities' spread about the frame's mean (``about_mean``;
+    else about 0: dimmed) scaled by c, plus N(0, SWEEP_NOISE^2) gray levels of noise,
+    clipped to uint8 (module doc)."""
     f = raw.astype(np.float32)
-    m = float(f.mean())
+    m = float(f.mean()) if about_mean else 0.0
     out = m + (f - m) * c + rng.normal(0.0, SWEEP_NOISE, f.shape)
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
 def sweep_frame(dets: dict, acc: dict, sim, i: int, raw: np.ndarray, rho, th, seed: int, errors, both) -> None:
-    """The sweep of one clear frame (module doc), free mode, into ``acc`` {(detector, c): counts}:
+    """The sweep of one clear frame (module doc), free mode, into ``acc`` {(detector, mode, c): counts}:
     ``errors(lines, rho, th)`` and ``both(errors)`` judge the detections against the true limb
     lines (rho, th) as bench_detect.py does."""
     from graphtrack.detect import detect_raw
 
-    for c in (1.0,) + CONTRAST_SCALES:
-        img = raw if c == 1.0 else scale_contrast(raw, c, np.random.default_rng([seed, i, int(c * 1000)]))
+    for mode, c in SWEEP:
+        img = raw if c == 1.0 else scale_contrast(raw, c, np.random.default_rng([seed, i, int(c * 1000)]),
+                                                  about_mean=mode == "contrast")
         contrast = edge_contrast(sim, i, img)
         for name, det in dets.items():
-            a = acc.setdefault((name, c), {"both": 0, "err": [], "ms": [], "n": 0, "contrast": []})
+            a = acc.setdefault((name, mode, c), {"both": 0, "err": [], "ms": [], "n": 0, "contrast": []})
             d = detect_raw(det, img, sim.camera, None)
             e = errors(d.shaft_lines, rho, th)
             a["n"] += 1
@@ -79,16 +85,16 @@ def sweep_frame(dets: dict, acc: dict, sim, i: int, raw: np.ndarray, rho, th, se
 
 
 def contrast_table(rnd: dict) -> str:
-    """Markdown: the contrast sweep, free mode: both-edges rate / median |d_rho| px per scale."""
+    """Markdown: the sweep, free mode, a row per (mode, c): the median edge contrast and each
+    detector's both-edges rate / median |d_rho| px."""
     names = [n for n in rnd if isinstance(rnd[n], dict) and rnd[n].get("contrast")]
     if not names:
         return ""
-    first = rnd[names[0]]["contrast"]
-    rows = ["| detector | " + " | ".join(f"x{f['c']} (edge {f['edge_contrast']} gray levels)" for f in first) + " |",
-            "|" + "---|" * (len(first) + 1)]
 
     def cell(f):
         return f"{f['both']:.3f} / {'-' if f['rho_px'] is None else f['rho_px']}"
-    for n in names:
-        rows.append(f"| {n} | " + " | ".join(cell(f) for f in rnd[n]["contrast"]) + " |")
+    rows = ["| frames | edge contrast (gray levels) | " + " | ".join(names) + " |", "|" + "---|" * (len(names) + 2)]
+    for i, f in enumerate(rnd[names[0]]["contrast"]):
+        rows.append(f"| {f['mode']} x{f['c']} | {f['edge_contrast']} | "
+                    + " | ".join(cell(rnd[n]["contrast"][i]) for n in names) + " |")
     return "\n".join(rows)

@@ -1,5 +1,6 @@
-"""The detection benchmark's contrast sweep (benchmarks/contrast_sweep.py): the scaled frame
-keeps its mean and scales its spread by c; the edge contrast it reports scales with c."""
+"""The detection benchmark's contrast sweep (benchmarks/contrast_sweep.py): a frame scaled about
+its mean keeps the mean, a dimmed one scales it, both scale the spread by c; the edge contrast
+it reports scales with c."""
 from __future__ import annotations
 
 import sys
@@ -20,6 +21,16 @@ def test_scale_contrast_keeps_the_mean_and_scales_the_spread():
     assert out.dtype == np.uint8 and out.shape == raw.shape
     assert abs(out.mean() - f.mean()) < 0.1
     # var(c (I - m) + n) = c^2 var(I) + SWEEP_NOISE^2 (+ the rounding's 1/12)
+    expected = np.sqrt(0.25 ** 2 * f.var() + SWEEP_NOISE ** 2 + 1 / 12)
+    assert abs(out.std() - expected) < 0.02 * expected
+
+
+def test_dimming_scales_the_mean_and_the_spread():
+    rng = np.random.default_rng(3)
+    raw = rng.integers(40, 216, (120, 160, 3)).astype(np.uint8)
+    out = scale_contrast(raw, 0.25, np.random.default_rng(4), about_mean=False)
+    f = raw.astype(float)
+    assert abs(out.mean() - 0.25 * f.mean()) < 0.1
     expected = np.sqrt(0.25 ** 2 * f.var() + SWEEP_NOISE ** 2 + 1 / 12)
     assert abs(out.std() - expected) < 0.02 * expected
 
