@@ -226,13 +226,14 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                 raw = sim.render(i)[0]
                 rho, th, ok = shaft_lines(base_features(sim.robot, sim.q_read[i]).transformed(sim.E_t[i]), cam.K)
                 pred = np.stack([rho + rng.normal(0, 5.0, 2), th + rng.normal(0, 0.03, 2)], 1) if ok else None
-                if cat == "clear":
-                    sweep_frame(dets, sweep, sim, i, raw, rho, th, HELD_OUT + k, _errors, _both)
+                free = {}
                 for name, det in dets.items():
                     for mode, p in (("free", None), ("gated", pred)):
                         if mode == "gated" and p is None:
                             continue
                         d = detect_raw(det, raw, cam, p)
+                        if mode == "free":
+                            free[name] = d
                         a = acc.setdefault((name, cat, mode), {"both": 0, "err": [], "ms": [], "n": 0, "false": 0})
                         a["n"] += 1
                         a["ms"].append(d.ms)
@@ -243,6 +244,8 @@ def _randomized(dets: dict, recordings: int, frames: int, log) -> dict:
                         a["err"] += e
                         a["both"] += int(_both(e))
                         a.setdefault("sets", []).extend(_set_offsets(d, rho, th))
+                if cat == "clear":
+                    sweep_frame(dets, sweep, sim, i, raw, rho, th, HELD_OUT + k, _errors, _both, free)
         log(f"randomized {scene}: {counts}")
     out: dict = {"seeds": f"{HELD_OUT}-{HELD_OUT + recordings - 1} per scene", "frames": counts}
     for (name, cat, mode), a in sorted(acc.items()):

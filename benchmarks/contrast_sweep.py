@@ -63,10 +63,12 @@ def scale_contrast(raw: np.ndarray, c: float, rng, about_mean: bool = True) -> n
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
-def sweep_frame(dets: dict, acc: dict, sim, i: int, raw: np.ndarray, rho, th, seed: int, errors, both) -> None:
+def sweep_frame(dets: dict, acc: dict, sim, i: int, raw: np.ndarray, rho, th, seed: int, errors, both,
+                free: dict) -> None:
     """The sweep of one clear frame (module doc), free mode, into ``acc`` {(detector, mode, c): counts}:
     ``errors(lines, rho, th)`` and ``both(errors)`` judge the detections against the true limb
-    lines (rho, th) as bench_detect.py does."""
+    lines (rho, th) as bench_detect.py does; ``free`` {detector: Detection}: each detector's
+    free-mode detection on ``raw`` itself, already made (the c = 1 row)."""
     from graphtrack.detect import detect_raw
 
     for mode, c in SWEEP:
@@ -75,7 +77,7 @@ def sweep_frame(dets: dict, acc: dict, sim, i: int, raw: np.ndarray, rho, th, se
         contrast = edge_contrast(sim, i, img)
         for name, det in dets.items():
             a = acc.setdefault((name, mode, c), {"both": 0, "err": [], "ms": [], "n": 0, "contrast": []})
-            d = detect_raw(det, img, sim.camera, None)
+            d = free[name] if c == 1.0 else detect_raw(det, img, sim.camera, None)
             e = errors(d.shaft_lines, rho, th)
             a["n"] += 1
             a["ms"].append(d.ms)
