@@ -123,3 +123,29 @@ def test_paint_on_a_black_shaft_is_a_marker_and_tinted_speckles_are_not():
     m = detect_markers(_black_shaft(True, True))
     assert len(m) == 1 and np.hypot(*(m[0] - (200.0, 140.0))) < 0.5
     assert detect_markers(_black_shaft(False, True)).shape == (0, 2)
+
+
+def _tinted_shaft(discs) -> np.ndarray:
+    """A dark grey shaft under blue light that passes the colour window itself (BGR (72, 56, 46):
+    H 108, S 92, V 72, chroma 26) on pink tissue, with painted discs (chroma ~ 190) on it."""
+    img = np.zeros((480, 640, 3), np.uint8)
+    img[:] = (150, 125, 205)                                    # pink: outside the colour window
+    img[200:250, 40:320] = (72, 56, 46)                       # 14000 px: within max_area
+    for c in discs:
+        img = paint(img, c, 7.0, (220, 120, 30))
+    return img
+
+
+def test_paint_merged_with_a_tinted_shaft_is_found_inside_it():
+    """Shaft and discs are one blob of the colour window, no more saturated than the tissue
+    around it; the discs stand out from the rest of that blob in chroma, and are found with
+    the centroids they have alone (the same paint on an untinted grey shaft)."""
+    discs = [(100.3, 224.6), (250.8, 212.2)]
+    hsv = cv2.cvtColor(_tinted_shaft([]), cv2.COLOR_BGR2HSV)
+    assert 90 <= hsv[225, 300, 0] <= 120 and hsv[225, 300, 1] >= 40 and hsv[225, 300, 2] >= 40
+    for max_side in (480, 0):
+        m = detect_markers(_tinted_shaft(discs), MarkerConfig(max_side=max_side))
+        assert len(m) == 2
+        for c in discs:
+            assert np.min(np.hypot(*(m - c).T)) < 0.5
+    assert detect_markers(_tinted_shaft([])).shape == (0, 2)    # the tinted shaft alone is no marker

@@ -20,9 +20,12 @@ r = clip(sqrt(area / pi) / 2, 3, 8) px around it, a blob is kept when
 chroma C = S V / 255: saturation means nothing on a near-black pixel (a black
 shaft's JPEG noise reads S 150), whose chroma is small, so paint on a black
 shaft passes on chroma where its ring's noisy S would reject it, while a
-blue-tinted speckle on the shaft (S 56, V 46: C 10) does not. Measured on randomized
-recordings: docs/decisions/marker-contrast.md. Each blob's centre is the
-weighted centroid
+blue-tinted speckle on the shaft (S 56, V 46: C 10) does not. A blob that fails
+this test may be paint merged with a surface the colour window also passes (a
+grey shaft under blue light): inside it, the pixels whose chroma stands out from
+the blob's median chroma by the same rule are measured again as blobs, their
+ring now the rest of the blob. Measured on randomized recordings:
+docs/decisions/marker-contrast.md. Each blob's centre is the weighted centroid
 
     c = sum_p w(p) p / sum_p w(p),   w(p) = S(p) / 255,
 
@@ -103,6 +106,13 @@ def _more(inside: float, ring: float, cfg: MarkerConfig) -> bool:
 def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0: int = 0):
     """Weighted centroids (n, 2) and areas (n,) of the blobs of an image (offset x0, y0)."""
     mask, hsv = _mask(img, cfg)
+    return _measure(mask, hsv, cfg, max_area, x0, y0, split=True)
+
+
+def _measure(mask: np.ndarray, hsv: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int, y0: int,
+             split: bool):
+    """Centroids and areas of the blobs of ``mask`` that pass the size and ring tests; with
+    ``split``, also those of the paint inside a blob that failed its ring test (:func:`_paint_within`)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8, ltype=cv2.CV_32S)
     nz = cv2.findNonZero(mask)
     if nz is None or n <= 1:
@@ -118,8 +128,32 @@ def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0:
     good = (area >= cfg.min_area) & (area <= max_area) & (sw > 0)
     good[0] = False  # background
     ids = np.flatnonzero(good)
-    ids = ids[_saturated(hsv[:, :, 1], hsv[:, :, 2], mask, labels, stats, ids, area, cfg)]
-    return np.stack([sx[ids] / sw[ids] + x0, sy[ids] / sw[ids] + y0], 1), area[ids]
+    ok = _saturated(hsv[:, :, 1], hsv[:, :, 2], mask, labels, stats, ids, area, cfg)
+    c, a = np.stack([sx[ids[ok]] / sw[ids[ok]] + x0, sy[ids[ok]] / sw[ids[ok]] + y0], 1), area[ids[ok]]
+    failed = ids[~ok]
+    if split and len(failed):
+        inner = _paint_within(hsv, labels, failed[area[failed] >= 2 * cfg.min_area], cfg)
+        if inner is not None:
+            c2, a2 = _measure(inner, hsv, cfg, max_area, x0, y0, split=False)
+            c, a = np.concatenate([c, c2]), np.concatenate([a, a2])
+    return c, a
+
+
+def _paint_within(hsv: np.ndarray, labels: np.ndarray, ids: np.ndarray, cfg: MarkerConfig) -> np.ndarray | None:
+    """uint8 mask of the pixels of blobs ``ids`` whose chroma C = S V / 255 stands out from
+    their blob's median chroma C_b as a blob from its ring (C - C_b >= contrast_min and
+    C >= contrast_ratio C_b): paint merged with a tinted surface that passes the colour
+    window too (a grey shaft under blue light), found again inside it. None: no blob."""
+    if not len(ids):
+        return None
+    out = np.zeros(labels.shape, np.uint8)
+    for k in ids:
+        ys, xs = np.nonzero(labels == k)
+        C = hsv[ys, xs, 1].astype(np.float32) * hsv[ys, xs, 2] / 255.0
+        base = float(np.median(C))
+        keep = (C - base >= cfg.contrast_min) & (C >= cfg.contrast_ratio * base)
+        out[ys[keep], xs[keep]] = 255
+    return out
 
 
 def _candidate_boxes(mask: np.ndarray) -> np.ndarray:
