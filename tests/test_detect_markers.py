@@ -130,7 +130,7 @@ def _tinted_shaft(discs) -> np.ndarray:
     H 108, S 92, V 72, chroma 26) on pink tissue, with painted discs (chroma ~ 190) on it."""
     img = np.zeros((480, 640, 3), np.uint8)
     img[:] = (150, 125, 205)                                    # pink: outside the colour window
-    img[200:250, 40:320] = (72, 56, 46)                       # 14000 px: within max_area
+    img[200:250, 40:320] = (72, 56, 46)                         # 14000 px: within max_area
     for c in discs:
         img = paint(img, c, 7.0, (220, 120, 30))
     return img
@@ -138,8 +138,8 @@ def _tinted_shaft(discs) -> np.ndarray:
 
 def test_paint_merged_with_a_tinted_shaft_is_found_inside_it():
     """Shaft and discs are one blob of the colour window, no more saturated than the tissue
-    around it; the discs stand out from the rest of that blob in chroma, and are found with
-    the centroids they have alone (the same paint on an untinted grey shaft)."""
+    around it; the discs stand out from the rest of that blob in chroma, and are found
+    within 0.5 px of their centres (oracle: the centres they were painted at)."""
     discs = [(100.3, 224.6), (250.8, 212.2)]
     hsv = cv2.cvtColor(_tinted_shaft([]), cv2.COLOR_BGR2HSV)
     assert 90 <= hsv[225, 300, 0] <= 120 and hsv[225, 300, 1] >= 40 and hsv[225, 300, 2] >= 40

@@ -132,14 +132,15 @@ def _measure(mask: np.ndarray, hsv: np.ndarray, cfg: MarkerConfig, max_area: flo
     c, a = np.stack([sx[ids[ok]] / sw[ids[ok]] + x0, sy[ids[ok]] / sw[ids[ok]] + y0], 1), area[ids[ok]]
     failed = ids[~ok]
     if split and len(failed):
-        inner = _paint_within(hsv, labels, failed[area[failed] >= 2 * cfg.min_area], cfg)
+        inner = _paint_within(hsv, labels, stats, failed[area[failed] >= 2 * cfg.min_area], cfg)
         if inner is not None:
             c2, a2 = _measure(inner, hsv, cfg, max_area, x0, y0, split=False)
             c, a = np.concatenate([c, c2]), np.concatenate([a, a2])
     return c, a
 
 
-def _paint_within(hsv: np.ndarray, labels: np.ndarray, ids: np.ndarray, cfg: MarkerConfig) -> np.ndarray | None:
+def _paint_within(hsv: np.ndarray, labels: np.ndarray, stats: np.ndarray, ids: np.ndarray,
+                  cfg: MarkerConfig) -> np.ndarray | None:
     """uint8 mask of the pixels of blobs ``ids`` whose chroma C = S V / 255 stands out from
     their blob's median chroma C_b as a blob from its ring (C - C_b >= contrast_min and
     C >= contrast_ratio C_b): paint merged with a tinted surface that passes the colour
@@ -148,7 +149,9 @@ def _paint_within(hsv: np.ndarray, labels: np.ndarray, ids: np.ndarray, cfg: Mar
         return None
     out = np.zeros(labels.shape, np.uint8)
     for k in ids:
-        ys, xs = np.nonzero(labels == k)
+        x, y, w, h = stats[k, :4]                   # the blob's bounding box
+        ys, xs = np.nonzero(labels[y:y + h, x:x + w] == k)
+        ys, xs = ys + y, xs + x
         C = hsv[ys, xs, 1].astype(np.float32) * hsv[ys, xs, 2] / 255.0
         base = float(np.median(C))
         keep = (C - base >= cfg.contrast_min) & (C >= cfg.contrast_ratio * base)
