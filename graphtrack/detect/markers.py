@@ -92,15 +92,21 @@ def _saturated(sat: np.ndarray, val: np.ndarray, mask: np.ndarray, labels: np.nd
         if not ring.any():
             continue
         s = sat[y0:y1, x0:x1]
-        c = (s.astype(np.float32) * val[y0:y1, x0:x1]) / 255.0     # chroma, only where a blob is
+        c = _chroma(s, val[y0:y1, x0:x1])                           # only where a blob is
         keep[j] = (_more(float(np.median(s[blob > 0])), float(np.median(s[ring])), cfg)
                    or _more(float(np.median(c[blob > 0])), float(np.median(c[ring])), cfg))
     return keep
 
 
-def _more(inside: float, ring: float, cfg: MarkerConfig) -> bool:
-    """The blob stands out from its ring (saturation or chroma, OpenCV S units)."""
-    return inside - ring >= cfg.contrast_min and inside >= cfg.contrast_ratio * ring
+def _more(inside, ring, cfg: MarkerConfig):
+    """The blob stands out from its ring (saturation or chroma, OpenCV S units); elementwise
+    for arrays (a blob's pixels against its median, :func:`_paint_within`)."""
+    return (inside - ring >= cfg.contrast_min) & (inside >= cfg.contrast_ratio * ring)
+
+
+def _chroma(sat: np.ndarray, val: np.ndarray) -> np.ndarray:
+    """Chroma C = S V / 255 (OpenCV S units), float32."""
+    return sat.astype(np.float32) * val / 255.0
 
 
 def _blobs(img: np.ndarray, cfg: MarkerConfig, max_area: float, x0: int = 0, y0: int = 0):
@@ -152,9 +158,8 @@ def _paint_within(hsv: np.ndarray, labels: np.ndarray, stats: np.ndarray, ids: n
         x, y, w, h = stats[k, :4]                   # the blob's bounding box
         ys, xs = np.nonzero(labels[y:y + h, x:x + w] == k)
         ys, xs = ys + y, xs + x
-        C = hsv[ys, xs, 1].astype(np.float32) * hsv[ys, xs, 2] / 255.0
-        base = float(np.median(C))
-        keep = (C - base >= cfg.contrast_min) & (C >= cfg.contrast_ratio * base)
+        C = _chroma(hsv[ys, xs, 1], hsv[ys, xs, 2])
+        keep = _more(C, float(np.median(C)), cfg)
         out[ys[keep], xs[keep]] = 255
     return out
 
