@@ -57,7 +57,8 @@ class Pointwise(nn.Module):
     y[n, :, i, j] = W x[n, :, i, j] + b, computed as X W^T + b with X the (N h w, C_in)
     pixel matrix. On channels-last (NHWC) input X is a view and the output comes back
     channels-last; on this net's 1x1 layers it is faster on one core than the convolution
-    kernels, which copy the input (docs/decisions/stereo-detection.md)."""
+    kernels, which copy the input (docs/decisions/stereo-detection.md). Inference only:
+    the bias is added in place."""
 
     def __init__(self, conv: nn.Conv2d):
         super().__init__()
@@ -68,7 +69,8 @@ class Pointwise(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         n, c, h, w = x.shape
-        y = torch.addmm(self.bias, x.permute(0, 2, 3, 1).reshape(-1, c), self.weight_t)
+        y = torch.mm(x.permute(0, 2, 3, 1).reshape(-1, c), self.weight_t)
+        y += self.bias      # in place: a frozen trace runs addmm as mm + add, which allocates
         return y.view(n, h, w, -1).permute(0, 3, 1, 2)
 
 
