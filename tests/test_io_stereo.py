@@ -85,6 +85,21 @@ def test_mono_recording_has_no_right_images(tmp_path):
 
 
 @pytest.mark.parametrize("form", ["folder", "bag"])
+def test_a_mono_read_leaves_the_right_images_unread(tmp_path, form):
+    """frames(right=False) (a --mono run): the left images as recorded, no right image,
+    nothing counted as skipped; a missing right frame is not looked for."""
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(True), drop=(2,))
+    (write_folder(seq, frames) if form == "folder" else write_bag(seq / "r.bag", frames))
+    rec = open_recording(seq, **NO_ROBOT)
+    out = list(rec.frames(right=False))
+    assert len(out) == len(frames) and all(f.image_right is None for f in out)
+    for f, ref in zip(out, frames):
+        np.testing.assert_array_equal(f.image, ref.image)
+    assert sum(rec.right_skips.values()) == 0 and rec.stereo
+
+
+@pytest.mark.parametrize("form", ["folder", "bag"])
 def test_missing_right_frame_is_left_only_and_counted(tmp_path, form):
     seq = tmp_path / "seq"
     frames = make_seq(seq, stereo_calibration(True), drop=(2,))

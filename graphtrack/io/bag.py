@@ -270,8 +270,9 @@ class BagSource:
             conns = [c for c in r.connections if c.topic == topic]
             yield from ((t, raw, r.deserialize) for _, t, raw in r.messages(connections=conns))
 
-    def frames(self, start: int = 0):
+    def frames(self, start: int = 0, right: bool = True):
         """Yield, per left image from ``start`` on, a Frame (unchecked) or a FrameError.
+        right: False leaves the right images unread (Frame.image_right None, nothing counted).
 
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
@@ -279,7 +280,8 @@ class BagSource:
         joints, jaw = self.joint_tables()
         index = -1
         it = self._image_messages()
-        right = _RightMatcher(self, self._image_messages(self.right_topic)) if self.right_topic else None
+        right = (_RightMatcher(self, self._image_messages(self.right_topic))
+                 if self.right_topic and right else None)
         while True:
             try:
                 item = next(it)

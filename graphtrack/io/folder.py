@@ -175,17 +175,18 @@ class FolderSource:
             self.right_skips["missing" if p is None else "corrupt"] += 1
         return img
 
-    def frames(self, start: int = 0):
+    def frames(self, start: int = 0, right: bool = True):
         """Yield, per row of joints.csv from ``start`` on, a Frame (unchecked) or a FrameError.
 
         Frame.image_right: frames_right/ holds the right image of the left image with the
-        same name (same row, same stamp); None when it is missing or does not decode."""
+        same name (same row, same stamp); None when it is missing or does not decode, or
+        unread with ``right`` False."""
         for k, img, err in self._images(start):
             if err is not None:
                 yield FrameError(k, "corrupt_image", err)
             else:
                 yield Frame(k, float(self._stamps[k]), img, self._joints[k].copy(), float(self._jaw[k]),
-                            image_right=self._right(k))
+                            image_right=self._right(k) if right else None)
 
 
 def _image_files(d: Path) -> dict[int, Path]:

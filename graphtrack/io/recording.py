@@ -148,16 +148,18 @@ class Recording:
     def __iter__(self) -> Iterator[object]:
         return self.frames()
 
-    def frames(self, start: int = 0, expected_joints: int | None = None) -> Iterator[object]:
+    def frames(self, start: int = 0, expected_joints: int | None = None,
+               right: bool = True) -> Iterator[object]:
         """Yield a :class:`~graphtrack.estimate.base.Frame` or a FrameError per frame, in order.
 
         start: first frame index to yield (earlier images are skipped undecoded);
-        expected_joints: DH joint count to enforce (default: ``self.n_joints``).
+        expected_joints: DH joint count to enforce (default: ``self.n_joints``);
+        right: False leaves a stereo recording's right images unread (a mono run).
         """
         n_exp = self.n_joints if expected_joints is None else int(expected_joints)
         h, w = self.image_size
         has_jaw = self.has_jaw
-        for item in self.source.frames(start):
+        for item in self.source.frames(start, right=right):
             if isinstance(item, FrameError):
                 yield item
                 continue

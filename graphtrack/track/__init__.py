@@ -107,7 +107,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                disable=quiet) if progress else None
     t_wall = time.perf_counter()
     with TrajectoryWriter(out, extra_columns=extra) as writer:
-        for item, t_decode, t0 in read_frames(rec, max_frames, run, bar):
+        for item, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=ctx.stereo):
             if not isinstance(item, FrameError):
                 item = untrackable(item, rec.robot.n_joints, run.last_stamp) or item
             if isinstance(item, FrameError):

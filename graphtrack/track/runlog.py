@@ -91,9 +91,10 @@ class RunLog:
         return out
 
 
-def read_frames(rec: Recording, max_frames: int | None, run: RunLog, bar):
-    """(item, decode ms, start time) for up to ``max_frames`` recording items, counted in run.read."""
-    it = iter(rec.frames())
+def read_frames(rec: Recording, max_frames: int | None, run: RunLog, bar, right: bool = True):
+    """(item, decode ms, start time) for up to ``max_frames`` recording items, counted in run.read;
+    ``right`` False: the right images are not read."""
+    it = iter(rec.frames(right=right))
     while max_frames is None or run.read < max_frames:
         t0 = time.perf_counter()
         try:
