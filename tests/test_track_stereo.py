@@ -77,6 +77,10 @@ def test_missing_right_image_falls_back_to_left_only(recordings, tmp_path):
     assert m["frames_tracked"] == 8 and m["frames_skipped"] == 0
     assert m["frames_left_only"] == 1
     assert sum(m["right_skipped_reasons"].values()) == 1
+    # a --mono run does not read the right images, so the missing one is not counted
+    m = track(seq, tmp_path / "m", TrackOptions(detection=CANNY, stereo=False), progress=False, quiet=True)
+    assert m["stereo"] is False and m["frames_left_only"] == 0
+    assert sum(m["right_skipped_reasons"].values()) == 0
 
 
 def test_triangulated_labels_hand_computed():

@@ -272,10 +272,10 @@ class BagSource:
 
     def frames(self, start: int = 0, right: bool = True):
         """Yield, per left image from ``start`` on, a Frame (unchecked) or a FrameError.
-        right: False leaves the right images unread (Frame.image_right None, nothing counted).
 
         Frame.joints: the nearest joint message's ``position``; Frame.jaw: the
         nearest jaw message's first value, NaN when the bag has no jaw topic.
+        right: False leaves the right images unread (Frame.image_right None, nothing counted).
         """
         joints, jaw = self.joint_tables()
         index = -1
