@@ -26,29 +26,23 @@ SWEEP = (("clear", 1.0),) + tuple((m, c) for m in ("contrast", "light") for c in
 def edge_contrast(sim, i: int, raw: np.ndarray, offset: float = 3.0, samples: int = 24) -> float:
     """The shaft's contrast with its background in the raw frame i (gray levels): per
     true edge segment, the median over ``samples`` points along its middle 80 % of
-    |gray ``offset`` px outside - gray ``offset`` px inside| (sampled through the
-    lens distortion); the lower of the two edges. NaN without two edges in view."""
-    import cv2
-
+    |gray ``offset`` px to one side - gray ``offset`` px to the other| (read through the
+    lens distortion, :func:`graphtrack.detect.shaft_end.raw_sampler`); the lower of the two
+    edges. NaN without two edges in view."""
+    from graphtrack.detect.shaft_end import raw_sampler
     from graphtrack.training.labels import shaft_edge_segments
 
     cam = sim.camera
     segs = shaft_edge_segments(sim.robot, sim.q_read[i], sim.E_t[i], cam.K, cam.height, cam.width)
     if len(segs) != 2:
         return float("nan")
-    gray = cv2.cvtColor(raw, cv2.COLOR_BGR2GRAY).astype(np.float32)
+    sample = raw_sampler(raw, cam)
     t = np.linspace(0.1, 0.9, samples)[:, None]
     out = []
-    for j in range(2):
-        a, b, other = segs[j, :2], segs[j, 2:], segs[1 - j]
+    for a, b in zip(segs[:, :2], segs[:, 2:]):
         d = (b - a) / np.linalg.norm(b - a)
         n = np.array([-d[1], d[0]])
-        n = n if (0.5 * (other[:2] + other[2:]) - a) @ n >= 0 else -n     # into the shaft
         p = a + t * (b - a)
-
-        def sample(q):
-            q = cam.distort_pixels(q).astype(np.float32).reshape(-1, 1, 2)
-            return cv2.remap(gray, q[..., 0], q[..., 1], cv2.INTER_LINEAR, borderValue=float("nan")).ravel()
         out.append(float(np.nanmedian(np.abs(sample(p - offset * n) - sample(p + offset * n)))))
     return min(out)
 
