@@ -135,8 +135,8 @@ def _measure(mask: np.ndarray, hsv: np.ndarray, cfg: MarkerConfig, max_area: flo
     good[0] = False  # background
     ids = np.flatnonzero(good)
     ok = _saturated(hsv[:, :, 1], hsv[:, :, 2], mask, labels, stats, ids, area, cfg)
-    c, a = np.stack([sx[ids[ok]] / sw[ids[ok]] + x0, sy[ids[ok]] / sw[ids[ok]] + y0], 1), area[ids[ok]]
-    failed = ids[~ok]
+    kept, failed = ids[ok], ids[~ok]
+    c, a = np.stack([sx[kept] / sw[kept] + x0, sy[kept] / sw[kept] + y0], 1), area[kept]
     if split and len(failed):
         inner = _paint_within(hsv, labels, stats, failed[area[failed] >= 2 * cfg.min_area], cfg)
         if inner is not None:
