@@ -21,7 +21,7 @@ as the last sample turns away: 1.1 mm disc, 4 mm shaft radius, 10 cm), and
 stays an association candidate (docs/decisions/painted-disc-markers.md).
 Residuals are robustified per detection on ||z_j||
 (:mod:`factors.robust`). Association: Hungarian (scipy
-``linear_sum_assignment``) between detections and the markers' predictions
+``linear_sum_assignment``, on distances capped at the gate) between detections and the markers' predictions
 through the CURRENT E at every evaluation (so at each relinearisation); a pair
 farther than ``gate`` px (default 20) or a marker behind the camera leaves
 detection j unassociated: z_j = 0, zero Jacobian. One factor per
@@ -49,14 +49,22 @@ from graphtrack.geometry.se3 import skew
 
 def associate(predicted: np.ndarray, detected: np.ndarray, gate: float,
               usable: np.ndarray | None = None) -> np.ndarray:
-    """Hungarian association: a (N,) marker index per detection, -1 if none within ``gate`` px."""
+    """Hungarian association: a (N,) marker index per detection, -1 if none within ``gate`` px.
+
+    The assignment minimises sum_j min(d_j, gate) (d_j: detection j's distance to its
+    marker), the particle filter's marker cost (an unmatched detection costs the gate):
+    a pair beyond the gate costs the same whichever marker it is, so detections far
+    from every marker (a highlight, a blob on the tissue) do not move the near ones'
+    pairing. (With raw distances, one far detection's 1000 px to marker 0 against 1020 px
+    to marker 2 could outweigh a near detection's 0.5 px to marker 0 against 19.5 px to
+    marker 2, and pair the near one with the wrong marker.)"""
     a = -np.ones(len(detected), int)
     if len(detected) == 0 or len(predicted) == 0:
         return a
     D = np.linalg.norm(detected[:, None, :] - predicted[None, :, :], axis=-1)
     if usable is not None:
-        D[:, ~usable] = 1e9
-    rows, cols = linear_sum_assignment(D)
+        D[:, ~usable] = np.inf
+    rows, cols = linear_sum_assignment(np.minimum(D, min(float(gate), 1e9)))
     ok = D[rows, cols] <= gate
     a[rows[ok]] = cols[ok]
     return a

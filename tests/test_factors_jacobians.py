@@ -6,7 +6,7 @@ import pytest
 
 from factors.limb import LimbPairing
 from factors.line_parameter import LineParameterError, line_parameter_factor
-from factors.marker import MarkerError, marker_factor
+from factors.marker import MarkerError, associate, marker_factor
 from factors.robust import make_kernel
 from factors.shaft_pixels import ShaftPixelsError, shaft_pixels_factor
 from graphtrack.sim.synthetic import sequence
@@ -142,6 +142,22 @@ def test_marker_jacobian_and_gate(scene, kernel):
     fn = MarkerError(far, F.points, cam.K, 2.0, 20.0, kernel)
     e, J = fn.evaluate(pose.matrix())
     assert fn.assoc[-1] == -1 and np.all(e[-2:] == 0) and np.all(J[-2:] == 0)
+
+
+def test_marker_association_ignores_detections_beyond_the_gate():
+    """Hand-computed: markers at x = 0 and 20 px, a detection 0.5 px from the first and
+    one far off (1000 px from the first, 1020 from the second). Raw distances would pair
+    the near detection with the second marker (19.5 + 1000 < 0.5 + 1020); the gate caps
+    both far costs alike, so the near one keeps the first marker and the far one none."""
+    predicted = np.array([[0.0, 0.0], [20.0, 0.0]])
+    detected = np.array([[0.5, 0.0], [-1000.0, 0.0]])
+    np.testing.assert_array_equal(associate(predicted, detected, gate=25.0), [0, -1])
+    # a marker that is not usable (behind the camera) is never paired, however near
+    np.testing.assert_array_equal(associate(predicted, detected, 25.0, usable=np.array([False, True])),
+                                  [1, -1])
+    # among detections within the gate, the assignment still minimises the summed distance
+    np.testing.assert_array_equal(associate(predicted, np.array([[18.0, 0.0], [3.0, 0.0]]), 25.0),
+                                  [1, 0])
 
 
 @pytest.mark.parametrize("kind,k", [("huber", 1.345), ("cauchy", 2.0)])
