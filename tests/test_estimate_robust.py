@@ -8,7 +8,7 @@ import pytest
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.divergence import NOMINAL_FALSE_ALARM_RATE, DivergenceMonitor
-from graphtrack.estimate.gating import CEIL_PX, marker_gate
+from graphtrack.estimate.gating import CEIL_PX, N_SIGMA, marker_gate
 from robust_world import make_world as make_scene
 from graphtrack.estimate.startup import Scorer
 from graphtrack.eval.robustness import no_detection_stretches
@@ -110,8 +110,10 @@ def test_marker_gate_follows_the_covariance():
 @pytest.mark.parametrize("name", ["pf", "smoother"])
 def test_marker_gate_widens_after_a_gap_and_returns_as_it_converges(name):
     """With marker_gate_follows_covariance the estimators' gate follows their
-    covariance: wide while uncertain (the PF's initial cloud), back to the configured
-    gate once confident, never below it."""
+    covariance. The particle filter's: wide while uncertain (its initial cloud), back to
+    the configured gate once confident, never below it. The smoother's: the configured
+    gate until it has a covariance, then narrower as it converges (gating.smoother_gate),
+    never above the configured gate nor below 3 marker sigmas."""
     scene = make_scene(seed=2, b_mm=3.0, w_deg=1.5)
     est = make_estimator(name, scene.ctx, search=False, marker_gate_follows_covariance=True,
                          **({"particles": 400} if name == "pf" else {}))
@@ -130,10 +132,15 @@ def test_marker_gate_widens_after_a_gap_and_returns_as_it_converges(name):
         obs = scene.observation(q, MODEL, np.random.default_rng(t), pixel_noise=0.5, outliers=0.02)
         gates.append(gate(q, obs))
         est.step(Frame(t, t / 30.0, None, q[:6], q[6]), obs)
-    assert min(gates) >= configured
-    assert gates[-1] == pytest.approx(configured)          # confident
     if name == "pf":
+        assert min(gates) >= configured
+        assert gates[-1] == pytest.approx(configured)      # confident
         assert gates[0] > configured                       # the initial cloud
+    else:
+        floor = N_SIGMA * est.fopts.marker_sigma
+        assert gates[0] == pytest.approx(configured)       # no covariance yet
+        assert max(gates) <= configured + 1e-9 and min(gates) >= floor - 1e-9
+        assert gates[-1] < 0.5 * configured                # confident
 
 
 def _monitor_run(scene, x_of_t, frames, seed, pixel_noise=1.0, outliers=0.05):

@@ -11,17 +11,22 @@ marker's image covariance is P = J A C A^T J^T (px^2). The gate (px) is
     g = n_sigma * sqrt(lambda_max(P) + sigma^2)
 
 maximised over the markers in front of the camera (one gate per frame, as the
-association takes), with sigma (px) the detections' own noise, and clipped to
-[configured gate, ``ceil``]: it widens with the estimate's uncertainty (a long
-gap, a re-initialisation, a wide particle cloud) and returns to the configured
-gate as the estimate becomes confident. It does not shrink below it: the
-estimators' covariances are over-confident exactly when the lock is wrong.
-Without a usable covariance (None, non-finite) the configured gate is kept.
+association takes), with sigma (px) the detections' own noise, and by default
+clipped to [configured gate, ``ceil``]: it widens with the estimate's uncertainty (a
+long gap, a re-initialisation, a wide particle cloud) and returns to the configured
+gate as the estimate becomes confident, not below it (a wrong lock's covariance is
+over-confident). Without a usable covariance (None, non-finite) the configured gate
+is kept.
 
-Off by default in both estimators (``marker_gate_follows_covariance``): widening
-after the smoother's shaft-only start-up pairs markers 100+ px off wrongly; in the
-particle filter the gate is the cap of the robust marker cost, part of its tuned
-likelihood. Measurements: docs/decisions/startup-search.md, marker-gate.md.
+The smoother's gate (:func:`smoother_gate`, on by default: its
+``marker_gate_follows_covariance``) is g itself, at most the configured gate (so at least
+n_sigma sigma = 6 px): the configured gate while the window starts (no covariance yet),
+narrow once the estimate is confident, so that a blob far from every marker (a
+highlight, a coloured patch of tissue) is not paired with a marker the detector missed,
+whose robust residual would pull the estimate by a constant 1.345 sigma every frame.
+The particle filter's (off by default) widens only: its gate is the cap of the robust
+marker cost, part of its tuned likelihood. Measurements: docs/decisions/marker-gate.md,
+startup-search.md.
 """
 from __future__ import annotations
 
@@ -71,6 +76,15 @@ def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate:
     g = n_sigma * np.sqrt(np.max(np.clip(lam, 0.0, None)) + sigma ** 2)
     lo = float(gate) if floor is None else floor * scale
     return float(np.clip(g, lo, max(lo, ceil * scale)))
+
+
+def smoother_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, opts) -> float:
+    """The smoother's marker gate (detection px): :func:`marker_gate` with no floor but
+    its own n_sigma * marker_sigma, at most the configured gate; opts: its FactorOptions
+    (marker_gate, marker_sigma, gate_scale)."""
+    g = marker_gate(points, K, cov, opts.marker_gate * opts.gate_scale, opts.marker_sigma, opts.gate_scale,
+                    floor=0.0, ceil=opts.marker_gate)
+    return g / opts.gate_scale
 
 
 def gate_along(point: np.ndarray, direction: np.ndarray, K: np.ndarray, cov: np.ndarray, sigma: float,

@@ -56,7 +56,7 @@ from graphtrack.estimate.options import (LAG_S, MOTION_SIGMA_B, MOTION_SIGMA_W, 
                                          SEARCH, SMOOTHER)
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
-from graphtrack.estimate.gating import marker_gate
+from graphtrack.estimate.gating import smoother_gate
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.robot.features import base_features
 from graphtrack.estimate.graph import (edge_bias_factors, estimate_extra, gaussian_bw,
@@ -79,9 +79,10 @@ class FixedLagSmootherEstimator:
     while the newest state still moves more than ``converge_tol``),
     relinearize_threshold, settled_relinearize_threshold and settle (s; see
     the module doc), fps (stamps fallback), covariance (compute the marginal each
-    frame), refuse_misfit_rise (module doc), plus :class:`graphtrack.estimate.graph.FactorOptions`
-    (pixel_sigma, line_sigma_rho, line_sigma_theta, marker_sigma, marker_gate,
-    robust, robust_k, max_pixels).
+    frame), refuse_misfit_rise (module doc), marker_gate_follows_covariance (the marker
+    gate is 3 sigma of the predicted markers, at most marker_gate: gating.smoother_gate),
+    plus :class:`graphtrack.estimate.graph.FactorOptions` (pixel_sigma, line_sigma_rho,
+    line_sigma_theta, marker_sigma, marker_gate, robust, robust_k, max_pixels).
     """
 
     name = "smoother"
@@ -100,7 +101,7 @@ class FixedLagSmootherEstimator:
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
                  start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
                  search_std_w: float = 0.05, reinit_gap: int = 30, search_window: int = 6,
-                 marker_gate_follows_covariance: bool = False,
+                 marker_gate_follows_covariance: bool = True,
                  refuse_misfit_rise: float | None = REFUSE_MISFIT_RISE, **options):
         self.gtsam = gtsam
         self.ctx = ctx
@@ -137,7 +138,7 @@ class FixedLagSmootherEstimator:
         self.timings_ms: list[float] = []
         self.reinit = None
         self.last_cov = None          # marginal covariance of the last x_t (the marker gate)
-        self.gate_follows = bool(marker_gate_follows_covariance)   # estimate/gating.py; off: see its doc
+        self.gate_follows = bool(marker_gate_follows_covariance)   # _gated_options
         self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
         if search:
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
@@ -243,15 +244,14 @@ class FixedLagSmootherEstimator:
         return left_from_right_cov(pose.matrix(), np.asarray(C))
 
     def _gated_options(self, q, observation):
-        """The factor options with this frame's marker gate from the last marginal
-        covariance (:mod:`graphtrack.estimate.gating`); the configured gate without one."""
+        """The factor options with this frame's marker gate (:func:`graphtrack.estimate.gating.smoother_gate`
+        under the last marginal covariance plus one motion step); the configured gate without a
+        covariance (the start-up frame, a restarted window)."""
         o = self.fopts
         if not self.gate_follows or self.last_cov is None or observation is None or not len(observation.markers):
             return o
-        C = self.last_cov + self.motion_cov
         points = base_features(self.ctx.robot, q).transformed(self.last.matrix()).points
-        g = marker_gate(points, self.K, C, o.marker_gate * o.gate_scale, o.marker_sigma, o.gate_scale)
-        return dataclasses.replace(o, marker_gate=g / o.gate_scale)
+        return dataclasses.replace(o, marker_gate=smoother_gate(points, self.K, self.last_cov + self.motion_cov, o))
 
     def _start_up(self, k: int, shaft: list, markers: list, x: int, init=None):
         """Initial value of the first frame with detections: Levenberg-Marquardt on
