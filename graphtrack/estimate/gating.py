@@ -72,7 +72,8 @@ def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate:
     if cov is None or len(X) == 0 or not np.all(np.isfinite(cov)):
         return float(gate)
     P = marker_image_covariances(X, K, cov)
-    lam = np.linalg.eigvalsh(0.5 * (P + np.swapaxes(P, 1, 2)))[:, -1]
+    a, d, b = P[:, 0, 0], P[:, 1, 1], 0.5 * (P[:, 0, 1] + P[:, 1, 0])
+    lam = 0.5 * (a + d) + np.sqrt(0.25 * (a - d) ** 2 + b * b)   # the larger eigenvalue of [[a, b], [b, d]]
     g = n_sigma * np.sqrt(np.max(np.clip(lam, 0.0, None)) + sigma ** 2)
     lo = float(gate) if floor is None else floor * scale
     return float(np.clip(g, lo, max(lo, ceil * scale)))
