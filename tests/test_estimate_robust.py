@@ -8,7 +8,7 @@ import pytest
 from graphtrack.detect.base import Observation
 from graphtrack.estimate import make_estimator
 from graphtrack.estimate.divergence import NOMINAL_FALSE_ALARM_RATE, DivergenceMonitor
-from graphtrack.estimate.gating import CEIL_PX, N_SIGMA, marker_gate
+from graphtrack.estimate.gating import CEIL_PX, N_SIGMA_2D, marker_gate
 from robust_world import make_world as make_scene
 from graphtrack.estimate.startup import Scorer
 from graphtrack.eval.robustness import no_detection_stretches
@@ -113,7 +113,7 @@ def test_marker_gate_widens_after_a_gap_and_returns_as_it_converges(name):
     covariance. The particle filter's: wide while uncertain (its initial cloud), back to
     the configured gate once confident, never below it. The smoother's: the configured
     gate until it has a covariance, then narrower as it converges (gating.smoother_gate),
-    never above the configured gate nor below 3 marker sigmas."""
+    never above the configured gate nor below 3.72 marker sigmas."""
     scene = make_scene(seed=2, b_mm=3.0, w_deg=1.5)
     est = make_estimator(name, scene.ctx, search=False, marker_gate_follows_covariance=True,
                          **({"particles": 400} if name == "pf" else {}))
@@ -123,7 +123,7 @@ def test_marker_gate_widens_after_a_gap_and_returns_as_it_converges(name):
         if name == "pf":
             est._gate_markers(q)
             return est.marker_gate
-        o = est._gated_options(q, obs)
+        o = est._gated_options(base_features(scene.ctx.robot, q), obs)
         return o.marker_gate * o.gate_scale
 
     gates = []
@@ -137,7 +137,7 @@ def test_marker_gate_widens_after_a_gap_and_returns_as_it_converges(name):
         assert gates[-1] == pytest.approx(configured)      # confident
         assert gates[0] > configured                       # the initial cloud
     else:
-        floor = N_SIGMA * est.fopts.marker_sigma
+        floor = N_SIGMA_2D * est.fopts.marker_sigma
         assert gates[0] == pytest.approx(configured)       # no covariance yet
         assert max(gates) <= configured + 1e-9 and min(gates) >= floor - 1e-9
         assert gates[-1] < 0.5 * configured                # confident

@@ -19,8 +19,9 @@ over-confident). Without a usable covariance (None, non-finite) the configured g
 is kept.
 
 The smoother's gate (:func:`smoother_gate`, on by default: its
-``marker_gate_follows_covariance``) is g itself, at most the configured gate (so at least
-n_sigma sigma = 6 px): the configured gate while the window starts (no covariance yet),
+``marker_gate_follows_covariance``) is g with n_sigma = 3.72 (chi^2_2's 99.9 % point: a
+consistent detection is gated out once in a thousand), at most the configured gate (so
+at least 3.72 sigma = 7.4 px): the configured gate while the window starts (no covariance yet),
 narrow once the estimate is confident, so that a blob far from every marker (a
 highlight, a coloured patch of tissue) is not paired with a marker the detector missed,
 whose robust residual would pull the estimate by a constant 1.345 sigma every frame.
@@ -34,6 +35,8 @@ import numpy as np
 
 N_SIGMA = 3.0          #: gate half-width in standard deviations of the predicted marker
 CEIL_PX = 150.0        #: widest gate (detection pixels)
+#: the smoother's gate in sigmas: a 2-D residual's chi^2_2 99.9 % point, sqrt(-2 ln 0.001)
+N_SIGMA_2D = float(np.sqrt(-2.0 * np.log(1e-3)))
 
 
 def marker_image_covariances(points: np.ndarray, K: np.ndarray, cov: np.ndarray) -> np.ndarray:
@@ -80,11 +83,12 @@ def marker_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, gate:
 
 
 def smoother_gate(points: np.ndarray, K: np.ndarray, cov: np.ndarray | None, opts) -> float:
-    """The smoother's marker gate (detection px): :func:`marker_gate` with no floor but
-    its own n_sigma * marker_sigma, at most the configured gate; opts: its FactorOptions
-    (marker_gate, marker_sigma, gate_scale)."""
+    """The smoother's marker gate (detection px): :func:`marker_gate` at ``N_SIGMA_2D`` with
+    no floor but its own N_SIGMA_2D * marker_sigma, at most the configured gate; points:
+    the markers in the camera frame (m); opts: its FactorOptions (marker_gate, marker_sigma,
+    gate_scale)."""
     g = marker_gate(points, K, cov, opts.marker_gate * opts.gate_scale, opts.marker_sigma, opts.gate_scale,
-                    floor=0.0, ceil=opts.marker_gate)
+                    n_sigma=N_SIGMA_2D, floor=0.0, ceil=opts.marker_gate)
     return g / opts.gate_scale
 
 

@@ -166,7 +166,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
                         opts: FactorOptions,
                         E_ref: np.ndarray | None = None, pose_key: int | None = None,
                         line_bias: bool = True, extrinsic: np.ndarray | None = None,
-                        end_offset: bool = False) -> tuple[list, list]:
+                        end_offset: bool = False, features=None) -> tuple[list, list]:
     """The measurement factors of frame k as (shaft factors, marker factors).
 
     Pixel models: one :func:`factors.shaft_pixels.shaft_pixels_factor` per
@@ -193,7 +193,7 @@ def frame_factor_groups(k: int, q: np.ndarray, observation, robot, K: np.ndarray
     want_markers = opts.markers and len(observation.markers) > 0
     if not has_shaft and not want_markers:
         return out, []
-    F = base_features(robot, np.asarray(q, float))
+    F = base_features(robot, np.asarray(q, float)) if features is None else features
     kern = opts.kernel
     x = key(k) if pose_key is None else pose_key
     b = bias_key(k // opts.edge_bias_period) if opts.edge_bias else None

@@ -243,14 +243,13 @@ class FixedLagSmootherEstimator:
             return None
         return left_from_right_cov(pose.matrix(), np.asarray(C))
 
-    def _gated_options(self, q, observation):
-        """The factor options with this frame's marker gate (:func:`graphtrack.estimate.gating.smoother_gate`
-        under the last marginal covariance plus one motion step); the configured gate without a
-        covariance (the start-up frame, a restarted window)."""
+    def _gated_options(self, features, observation):
+        """The options with this frame's marker gate (gating.smoother_gate, the last covariance + one
+        motion step; features: the frame's base_features); the configured gate without a covariance."""
         o = self.fopts
         if not self.gate_follows or self.last_cov is None or observation is None or not len(observation.markers):
             return o
-        points = base_features(self.ctx.robot, q).transformed(self.last.matrix()).points
+        points = features.transformed(self.last.matrix()).points
         return dataclasses.replace(o, marker_gate=smoother_gate(points, self.K, self.last_cov + self.motion_cov, o))
 
     def _start_up(self, k: int, shaft: list, markers: list, x: int, init=None):
@@ -299,9 +298,10 @@ class FixedLagSmootherEstimator:
         if not self.settled and self.start_stamp is not None and t - self.start_stamp >= self.settle:
             self.settled = True
         x = self.gtsam.symbol("y", self.k) if self.settled else key(self.k)
+        F = base_features(self.ctx.robot, frame.q)
         shaft, markers = stereo_factor_groups(self.k, frame.q, observation, right, self.ctx, self.K,
-                                              self._gated_options(frame.q, observation), self.E0, pose_key=x,
-                                              line_bias=self.settled)
+                                              self._gated_options(F, observation), self.E0, pose_key=x,
+                                              line_bias=self.settled, features=F)
         return shaft, markers, x
 
     def _open_bias_block(self, k: int, t: float, graph, values, stamps) -> float:

@@ -39,20 +39,22 @@ from graphtrack.estimate.graph import FactorOptions, frame_factor_groups
 
 def stereo_factor_groups(k: int, q: np.ndarray, observation, right, ctx, K: np.ndarray,
                          opts: FactorOptions, E_ref: np.ndarray | None = None,
-                         pose_key: int | None = None, line_bias: bool = True) -> tuple[list, list]:
+                         pose_key: int | None = None, line_bias: bool = True, features=None) -> tuple[list, list]:
     """The measurement factors of frame k from both images as (shaft factors, marker
     factors): :func:`graphtrack.estimate.graph.frame_factor_groups` of the left
     ``observation`` (camera K), then, when ``right`` is given and ``ctx`` is stereo,
     those of the right observation through ctx.right's K2 and ctx.right_T_left, both
     images' shaft ends on the end offset (module doc). A frame without a right
-    observation (missing or corrupt right image) is left-only."""
+    observation (missing or corrupt right image) is left-only. features: the frame's
+    base_features(ctx.robot, q) when the caller has them."""
     both = right is not None and ctx.stereo
     shaft, markers = frame_factor_groups(k, q, observation, ctx.robot, K, opts, E_ref, pose_key, line_bias,
-                                         end_offset=both)
+                                         end_offset=both, features=features)
     if both:
         ref = None if E_ref is None else ctx.right_T_left @ np.asarray(E_ref, float)
         rs, rm = frame_factor_groups(k, q, right, ctx.robot, np.asarray(ctx.right.K, float), opts,
-                                     ref, pose_key, line_bias, extrinsic=ctx.right_T_left, end_offset=True)
+                                     ref, pose_key, line_bias, extrinsic=ctx.right_T_left, end_offset=True,
+                                     features=features)
         shaft, markers = shaft + rs, markers + rm
     return shaft, markers
 
