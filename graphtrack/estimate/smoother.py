@@ -80,7 +80,7 @@ class FixedLagSmootherEstimator:
     relinearize_threshold, settled_relinearize_threshold and settle (s; see
     the module doc), fps (stamps fallback), covariance (compute the marginal each
     frame), refuse_misfit_rise (module doc), marker_gate_follows_covariance (the marker
-    gate is 3 sigma of the predicted markers, at most marker_gate: gating.smoother_gate),
+    gate is 3.72 sigma of the predicted markers, at most marker_gate: gating.smoother_gate),
     plus :class:`graphtrack.estimate.graph.FactorOptions` (pixel_sigma, line_sigma_rho,
     line_sigma_theta, marker_sigma, marker_gate, robust, robust_k, max_pixels).
     """
