@@ -55,9 +55,7 @@ def associate(predicted: np.ndarray, detected: np.ndarray, gate: float,
     marker), the particle filter's marker cost (an unmatched detection costs the gate):
     a pair beyond the gate costs the same whichever marker it is, so detections far
     from every marker (a highlight, a blob on the tissue) do not move the near ones'
-    pairing. (With raw distances, one far detection's 1000 px to marker 0 against 1020 px
-    to marker 2 could outweigh a near detection's 0.5 px to marker 0 against 19.5 px to
-    marker 2, and pair the near one with the wrong marker.)"""
+    pairing (docs/decisions/smoother-marker-gate.md)."""
     a = -np.ones(len(detected), int)
     if len(detected) == 0 or len(predicted) == 0:
         return a
