@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -74,16 +75,20 @@ def recording_spec(i: int, seed0: int = SEED0) -> tuple[str, int, int]:
 
 
 def _simulate(spec) -> str:
-    from graphtrack.sim.simulate import simulate
+    from graphtrack.sim.simulate import RANDOMIZED_VERSION, simulate
     from graphtrack.threads import limit_threads
 
     limit_threads(1)
     scene, frames, seed = spec
     final = DATA / "recordings" / f"{scene}-{seed}"
-    if not (final / ".complete").is_file():
+    done, version = final / ".complete", f"v{RANDOMIZED_VERSION}\n"
+    if not (done.is_file() and done.read_text() == version):   # missing, or made by an older simulator
+        for stale in [final, *DATA.glob(f"study-*/runs/{final.name}")]:   # with the cells run on it
+            if stale.exists():
+                shutil.rmtree(stale)
         simulate(final, scene=scene, frames=frames, seed=seed, size=(540, 960), form="folder", randomize=True,
                  progress=False, image_format="jpeg")
-        (final / ".complete").write_text("ok\n")
+        done.write_text(version)
     return str(final)
 
 

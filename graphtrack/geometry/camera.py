@@ -80,6 +80,29 @@ class Camera:
         uv = np.asarray(uv, float)
         return np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy], -1)
 
+    def in_image(self, points: np.ndarray, tol_px: float = 1.0) -> np.ndarray:
+        """(...) bool: which camera-frame points (..., 3) this camera images: in front (Z > 0),
+        their raw pixel inside the image, and that pixel's ray their own.
+
+        The plumb-bob polynomial is not monotonic far off the axis (with k1 < 0 and
+        nothing else, x_d = x (1 + k1 r^2) turns back at r = 1 / sqrt(-3 k1)), so a point
+        far outside the field of view can have a raw pixel inside the image. Undistorting
+        that pixel (OpenCV's iterative inverse, :meth:`undistort_pixels`) then gives the
+        ray of a point near the axis; such a point, more than ``tol_px`` undistorted px
+        from its own projection, is not imaged."""
+        p = np.asarray(points, float)
+        shape, p = p.shape[:-1], p.reshape(-1, 3)
+        out = np.zeros(len(p), bool)
+        front = np.flatnonzero(p[:, 2] > 0)
+        raw = self.project_raw(p[front])
+        inside = (raw[:, 0] >= 0) & (raw[:, 0] <= self.width - 1) & (raw[:, 1] >= 0) & (raw[:, 1] <= self.height - 1)
+        idx, raw = front[inside], raw[inside]
+        if len(idx) and np.any(np.ravel(self.dist)):
+            back = self.undistort_pixels(raw)
+            idx = idx[np.hypot(*(back - self.project_undistorted(p[idx])).T) <= tol_px]
+        out[idx] = True
+        return out.reshape(shape)
+
     def project_undistorted(self, points: np.ndarray) -> np.ndarray:
         """Camera-frame points (..., 3) -> undistorted pixels (..., 2)."""
         p = np.asarray(points, float)

@@ -2,7 +2,8 @@
 
 Coverage. The *visible shaft* at frame i is the part of the shaft's centre
 line (link 4's z from -0.45 m to SHAFT_END, sampled every ~1 mm) that is in
-front of the camera and projects inside the raw image; its *coverage* is the
+front of the camera and imaged (its raw pixel inside the image, not folded back into
+it by the distortion from outside the field of view); its *coverage* is the
 fraction of those samples (i.e. of its 3-D length) hidden by an occluder: a
 tissue mask > 1/4 at the sample's raw pixel, or an instrument hit nearer than
 the shaft's front surface (centre-line depth - SHAFT_RADIUS) on its ray.
@@ -81,13 +82,13 @@ class Occlusion:
 
 
 def shaft_samples(L4: np.ndarray, camera) -> tuple[np.ndarray, np.ndarray]:
-    """Visible centre-line samples of the shaft: (points (M, 3) camera frame, raw uv (M, 2))."""
+    """Visible centre-line samples of the shaft: (points (M, 3) camera frame, raw uv (M, 2));
+    a sample is visible when it is 1 cm or more in front of the camera and imaged
+    (:meth:`graphtrack.geometry.camera.Camera.in_image`: not a point far outside the field
+    of view whose raw pixel the distortion folds back into the image)."""
     P = L4[:3, 3][None] + SHAFT_Z[:, None] * L4[:3, 2][None]
-    front = P[:, 2] > 0.01
-    P = P[front]
-    uv = camera.project_raw(P) if len(P) else np.zeros((0, 2))
-    ok = (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
-    return P[ok], uv[ok]
+    P = P[(P[:, 2] > 0.01) & camera.in_image(P)]
+    return P, (camera.project_raw(P) if len(P) else np.zeros((0, 2)))
 
 
 def coverage(occ: Occlusion, i: int, L4: np.ndarray, camera) -> float:

@@ -209,10 +209,7 @@ class Simulation:
         """What a randomized recording drew (scenario.json; see sim/scenario.py)."""
         bw = matrix_to_bw(self.delta)
         cam = self.camera
-        H, W = cam.height, cam.width
-        uv = self.tip_uv
-        tip_in = np.all(np.isfinite(uv), 1) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) \
-            & (uv[:, 1] <= H - 1)
+        tip_in = cam.in_image(self.tip_cam)
         shaft_in = np.array([len(occluders.shaft_samples(self.L_true[i, 4], cam)[0]) > 0 for i in range(self.n)])
         fx = self.scene.effects
         return {
@@ -302,6 +299,9 @@ def cache_dir() -> Path:
 
 #: bumped when a cached recording's content changes (2: robot.json carries the markers' disc radius)
 CACHE_VERSION = 2
+#: bumped when a randomized recording's content or scenario.json changes (2: a shaft or tip
+#: sample counts as in view only when the camera images it, Camera.in_image)
+RANDOMIZED_VERSION = 2
 
 
 def cached_recording(scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
