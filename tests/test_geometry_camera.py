@@ -121,3 +121,34 @@ def test_undistort_resized_is_opencvs_undistortion_of_the_reduced_camera():
     assert np.linalg.norm(centre - cam.scaled(0.25).project_undistorted(P)[0]) < 0.3
     rect = Camera(K.copy(), np.zeros(5), 540, 960)
     assert rect.undistort_resized(small) is small
+
+
+# a randomized recording's camera (structured-700015): k1 = -0.11, 1419 px focal length
+K_WIDE = np.array([[1418.74, 0, 475.7], [0, 1418.74, 274.0], [0, 0, 1]])
+D_WIDE = np.array([-0.1108, 0.00077, -0.00097, -0.00077, 0.0])
+
+
+def test_in_image_refuses_points_the_distortion_folds_into_the_image():
+    """Far off the axis the plumb-bob polynomial turns back: OpenCV projects a point 72 deg
+    off the axis into the image, but the camera does not image it."""
+    cam = Camera(K_WIDE.copy(), D_WIDE.copy(), 540, 960)
+    folded = np.array([3.0 * 0.04, -0.3 * 0.04, 0.04])
+    uv, _ = cv2.projectPoints(folded[None], np.zeros(3), np.zeros(3), K_WIDE, D_WIDE)
+    u, v = uv.ravel()
+    assert 0 <= u <= 959 and 0 <= v <= 539            # the model's raw pixel is inside
+    near = np.array([0.01, 0.005, 0.1])               # 6 deg off the axis
+    outside = np.array([0.05, 0.0, 0.1])              # raw pixel x ~ 1165, beyond the right edge
+    behind = np.array([0.0, 0.0, -0.1])
+    assert cam.in_image(np.stack([folded, near, outside, behind])).tolist() == [False, True, False, False]
+
+
+def test_in_image_without_distortion_is_the_image_rectangle():
+    cam = Camera(K.copy(), np.zeros(5), 540, 960)
+    rng = np.random.default_rng(3)
+    P = np.stack([rng.uniform(-0.1, 0.1, (2, 50)), rng.uniform(-0.06, 0.06, (2, 50)),
+                  rng.uniform(-0.02, 0.2, (2, 50))], -1)
+    uv = cam.project_undistorted(P)
+    expected = (P[..., 2] > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= 959) & (uv[..., 1] >= 0) & (uv[..., 1] <= 539)
+    got = cam.in_image(P)
+    assert got.shape == (2, 50) and 0 < expected.sum() < expected.size
+    np.testing.assert_array_equal(got, expected)
