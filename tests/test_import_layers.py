@@ -4,7 +4,7 @@ each other, directly or through others.
 
 Layers, lowest first (a unit may import any unit below it, never one above):
 
-    errors < threads (< study, commands);  errors < geometry < robot < io < detect < factors < estimate < eval < track < study < commands < cli
+    errors < threads (< study, commands);  allocator (< track);  errors < geometry < robot < io < detect < factors < estimate < eval < track < study < commands < cli
                                     detect < sim < training < commands
 
 ``sim`` renders recordings (geometry, robot, io, detect), ``training`` trains
@@ -22,6 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BELOW = {
     "errors": set(),
     "threads": {"errors"},   # graphtrack/threads.py: thread pools, set before numpy loads
+    "allocator": set(),      # graphtrack/allocator.py: malloc thresholds (ctypes only)
     "geometry": {"errors"},
     "robot": {"geometry"},
     "io": {"robot"},
@@ -29,7 +30,7 @@ BELOW = {
     "factors": {"detect"},
     "estimate": {"factors"},
     "eval": {"estimate"},
-    "track": {"eval"},
+    "track": {"eval", "allocator"},   # a tracking run keeps its freed frame buffers
     "study": {"track", "threads"},   # study workers run one thread each (limit_threads)
     "sim": {"detect"},
     "training": {"sim"},

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from graphtrack.allocator import keep_freed_memory
 from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
@@ -93,8 +94,10 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`).
 
     The returned dict is metrics.json's content plus ``timing`` (median ms
-    per stage) and ``fps``.
+    per stage) and ``fps``. The process keeps freed frame buffers for reuse
+    (:func:`graphtrack.allocator.keep_freed_memory`).
     """
+    keep_freed_memory()
     rec, ctx = _open(path, options, quiet, topics)
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
