@@ -103,14 +103,16 @@ def traced_net(net, key, shape: tuple[int, int]):
     and 1x1 layers: 4.9 vs 7.1 ms (traced NCHW) per 135x240 image, logits within 1e-4 of the
     eager net's (summation order; tests/test_learned_detector.py, docs/decisions/stereo-detection.md).
     Feed it ``channels_last`` input (any layout is correct, NHWC is the fast one). The
-    decoder's sizes are traced as operations, so the trace serves any input size."""
+    decoder's sizes are traced as operations, so the trace serves any input size. The
+    trace is not re-run against the eager net here (``check_trace``: 0.6 s of imports and
+    comparison at every start); the test above does that on several sizes."""
     if key not in _TRACED:
         try:
             with warnings.catch_warnings(), torch.inference_mode():
                 warnings.simplefilter("ignore")   # torch.jit is deprecated, still supported
                 nhwc = copy.deepcopy(net).to(memory_format=torch.channels_last)
                 x = torch.zeros(1, 3, *shape).contiguous(memory_format=torch.channels_last)
-                _TRACED[key] = torch.jit.freeze(torch.jit.trace(nhwc, x))
+                _TRACED[key] = torch.jit.freeze(torch.jit.trace(nhwc, x, check_trace=False))
         except Exception:  # noqa: BLE001 - any tracing failure: run the eager net
             _TRACED[key] = None
     return _TRACED[key]
