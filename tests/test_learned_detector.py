@@ -32,8 +32,9 @@ def test_forward_shapes():
 
 
 def test_pointwise_product_equals_the_1x1_convolution():
-    """Pointwise computes F.conv2d's 1x1 convolution on NCHW and channels-last input,
-    and keeps channels-last output channels-last."""
+    """Pointwise computes F.conv2d's 1x1 convolution on NCHW and channels-last input in
+    both orientations (X W^T, and W X^T for narrow layers); X W^T keeps channels-last output
+    channels-last, W X^T gives NCHW unless asked for channels-last."""
     from torch import nn
 
     from graphtrack.detect.learned_net import Pointwise
@@ -43,15 +44,20 @@ def test_pointwise_product_equals_the_1x1_convolution():
     with torch.no_grad():
         conv.weight.copy_(torch.randn(3, 5, 1, 1, generator=g))
         conv.bias.copy_(torch.randn(3, generator=g))
-    pw = Pointwise(conv)
     x = torch.randn(2, 5, 7, 9, generator=g)
+    nhwc = x.contiguous(memory_format=torch.channels_last)
     with torch.inference_mode():
         ref = torch.nn.functional.conv2d(x, conv.weight, conv.bias)
-        for inp in (x, x.contiguous(memory_format=torch.channels_last)):
-            y = pw(inp)
-            assert y.shape == ref.shape
-            np.testing.assert_allclose(y.numpy(), ref.numpy(), rtol=0, atol=1e-5)
-        assert pw(x.contiguous(memory_format=torch.channels_last)).is_contiguous(memory_format=torch.channels_last)
+        for pw in (Pointwise(conv), Pointwise(conv, transposed=True),
+                   Pointwise(conv, transposed=True, channels_last=True)):
+            for inp in (x, nhwc):
+                y = pw(inp)
+                assert y.shape == ref.shape
+                np.testing.assert_allclose(y.numpy(), ref.numpy(), rtol=0, atol=1e-5)
+        assert Pointwise(conv)(nhwc).is_contiguous(memory_format=torch.channels_last)
+        assert Pointwise(conv, transposed=True)(x[:1]).is_contiguous()
+        assert Pointwise(conv, transposed=True, channels_last=True)(x).is_contiguous(
+            memory_format=torch.channels_last)
 
 
 def test_traced_net_computes_what_the_eager_net_computes():
