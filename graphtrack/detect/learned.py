@@ -100,12 +100,12 @@ def traced_net(net, key, shape: tuple[int, int]):
 
     The same conv kernels without the modules' Python overhead, and channels-last
     (NHWC) convolutions, which oneDNN runs faster on one core for this net's depthwise
-    and 1x1 layers: 4.9 vs 7.1 ms (traced NCHW) per 135x240 image, logits within 1e-4 of the
-    eager net's (summation order; tests/test_learned_detector.py, docs/decisions/stereo-detection.md).
-    Feed it ``channels_last`` input (any layout is correct, NHWC is the fast one). The
-    decoder's sizes are traced as operations, so the trace serves any input size. The
-    trace is not re-run against the eager net here (``check_trace``: 0.6 s of imports and
-    comparison at every start); the test above does that on several sizes."""
+    layers; logits within 1e-4 of the eager net's (summation order;
+    docs/decisions/stereo-detection.md). Feed it ``channels_last`` input (any layout is
+    correct, NHWC is the fast one). The decoder's sizes are traced as operations, so the
+    trace serves any input size. The trace is not compared with the eager net here
+    (``check_trace``: 0.6 s of imports at every start); tests/test_learned_detector.py
+    compares them on several sizes."""
     if key not in _TRACED:
         try:
             with warnings.catch_warnings(), torch.inference_mode():

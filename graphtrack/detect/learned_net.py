@@ -69,7 +69,6 @@ class Pointwise(nn.Module):
     def __init__(self, conv: nn.Conv2d, transposed: bool = False, channels_last: bool = False):
         super().__init__()
         cout, cin = conv.weight.shape[:2]
-        self.cout = int(cout)
         self.transposed, self.channels_last = bool(transposed), bool(channels_last)
         w = conv.weight.detach().reshape(cout, cin)
         self.register_buffer("weight_t", w.t().contiguous())   # (cin, cout): X W^T
