@@ -186,7 +186,7 @@ class LearnedDetector:
             self._infer = traced_net(self.net, self._net_key, small.shape[:2]) or self.net
         with torch.inference_mode():
             y = torch.sigmoid(self._infer(x))[0].numpy()
-        return np.ascontiguousarray(y[0]), np.ascontiguousarray(y[1])   # copies only if the output is NHWC (eager net)
+        return np.ascontiguousarray(y[0]), np.ascontiguousarray(y[1])   # no copy: the fused net's head is NCHW (Pointwise)
 
     def _markers(self, img: np.ndarray, camera) -> np.ndarray:
         """Marker centres (M, 2) in undistorted pixels (found on the raw frame with ``camera``)."""

@@ -71,8 +71,8 @@ class Pointwise(nn.Module):
         cout, cin = conv.weight.shape[:2]
         self.transposed, self.channels_last = bool(transposed), bool(channels_last)
         w = conv.weight.detach().reshape(cout, cin)
-        self.register_buffer("weight_t", w.t().contiguous())   # (cin, cout): X W^T
-        self.register_buffer("weight", w.clone())               # (cout, cin): W X^T
+        # the operand of this orientation's product: W (cout, cin) for W X^T, W^T (cin, cout) for X W^T
+        self.register_buffer("weight", w.clone() if self.transposed else w.t().contiguous())
         bias = conv.bias.detach() if conv.bias is not None else torch.zeros(cout)
         self.register_buffer("bias", bias.clone())
 
@@ -83,7 +83,7 @@ class Pointwise(nn.Module):
             y += self.bias[:, None]
             y = y.view(-1, n, h, w).permute(1, 0, 2, 3)
             return y.contiguous(memory_format=torch.channels_last) if self.channels_last else y
-        y = torch.mm(x.permute(0, 2, 3, 1).reshape(-1, c), self.weight_t)
+        y = torch.mm(x.permute(0, 2, 3, 1).reshape(-1, c), self.weight)
         y += self.bias      # in place: a frozen trace runs addmm as mm + add, which allocates
         return y.view(n, h, w, -1).permute(0, 3, 1, 2)
 
