@@ -84,6 +84,7 @@ from graphtrack.estimate.divergence import DivergenceMonitor, misfit
 from graphtrack.estimate.pf.projection import project
 from graphtrack.estimate.prior_region import PRIOR_GATE
 from graphtrack.estimate.startup import SIGMAS, Scorer, SearchResult, global_search
+from graphtrack.estimate.window_challenge import HISTORY, scheduled, window_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
 
 #: a frame whose misfit at the estimate reaches this shows nothing of the tool there (as no detections)
@@ -92,8 +93,6 @@ BLIND_MISFIT = 0.95
 LOCK_FLOOR = 0.1
 #: px, the pixel sigma at which a prediction after a gap is judged (the search's second stage)
 COARSE_SIGMA = SIGMAS[1]
-#: frames used that the window challenge keeps (it draws ``window`` of them)
-HISTORY = 16
 #: explained frames kept as the lock's evidence, which a candidate must not contradict
 EVIDENCE = 5
 
@@ -304,7 +303,7 @@ class SearchInit:
         if self.window and not self.rejected and np.isfinite(ll_cur):
             self.history.append((np.asarray(q, float), observation, ll_cur))
             self.used += 1
-            if self.candidate is None and not after_gap and not diverged and _scheduled(self.used):
+            if self.candidate is None and not after_gap and not diverged and scheduled(self.used):
                 return self._challenge(x_cur, cov)
         if self.candidate is not None and not after_gap:
             return self._test(q, observation, ll_cur, m_cur, x_cur)
@@ -370,18 +369,13 @@ class SearchInit:
             return True
 
     def _challenge(self, x_cur: np.ndarray, cov: np.ndarray | None) -> np.ndarray | None:
-        """The window challenge (module doc): a new initial E, or None."""
-        frames = list(self.history)
-        pick = np.unique(np.linspace(0, len(frames) - 1, min(self.window, len(frames))).round().astype(int))
-        sel = [frames[i] for i in pick]
+        """The window challenge (module doc; :mod:`graphtrack.estimate.window_challenge`): a
+        new initial E, or None."""
         self.challenges += 1
         self.searches += 1
-        res = global_search(lambda x, s: sum(self.scorer(q, o, x, s) for q, o, _ in sel), x_cur,
-                            self.spread, self.rng, n=max(256, self.n // 2), prior_centre=np.zeros(6))
-        if self.outside(res.x) or self._same_mode(res.x, x_cur, cov):
-            return None
-        gain = sum(float(self.scorer(q, o, res.x)[0]) - ll for q, o, ll in sel)
-        if gain <= len(sel) * self.margin:
+        res, gain, frames = window_search(self.scorer, self.history, self.window, x_cur, self.spread,
+                                          self.rng, self.n)
+        if self.outside(res.x) or self._same_mode(res.x, x_cur, cov) or gain <= frames * self.margin:
             return None
         self.switches += 1
         return self._adopt(res, keep_schedule=True)
@@ -392,9 +386,3 @@ class SearchInit:
         finite = cov is not None and np.all(np.isfinite(cov))
         return self._within(x, x_cur, np.asarray(cov, float) if finite else np.zeros((6, 6)))
 
-
-def _scheduled(used: int) -> bool:
-    """The window challenge runs after 8 and 16 frames used since a start (later ones
-    switched to modes the scorer prefers and the smoother's edge-bias model does not:
-    docs/decisions/window-challenge.md)."""
-    return used in (8, 16)
