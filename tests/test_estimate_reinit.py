@@ -280,7 +280,8 @@ def test_after_a_gap_one_edge_makes_a_candidate_not_an_adoption():
     40 frames unseen, does not explain the prediction, and a search mode fit to it is set
     along what the edge does not see by the hand-eye prior alone. The frame starts a
     candidate (the multi-frame test decides) and the window challenge's schedule restarts;
-    nothing is adopted on that one frame."""
+    nothing is adopted on that one frame, and the estimator predicts through it (an
+    outlier frame, not in the challenge's history)."""
     world = make_world(8, 3.0, 1.5)
     policy = SearchInit(world.ctx, seed=0, window=6)
     q, _ = _frame(world, 0)
@@ -298,7 +299,31 @@ def test_after_a_gap_one_edge_makes_a_candidate_not_an_adoption():
     count = policy.count
     assert policy.propose(q, one, world.E_true, True) is None
     assert policy.count == count and policy.candidate is not None
-    assert policy.used == 1                     # the challenge counts frames from the gap
+    assert policy.rejected and policy.used == 0     # the challenge counts frames from the gap
+
+
+def test_after_a_gap_the_estimate_is_held_through_frames_it_does_not_explain():
+    """After 40 frames unseen, an occluder's edge 3 mm off (nothing of the tool in view) is
+    not taken as the tool's: the smoother predicts through the first ``confirm`` frames the
+    prediction does not explain (its pose does not move; used, that one edge moved it
+    12 mm). Once a frame is explained again (the tool back where it was) the re-entry ends
+    and the frames are used; a tool that really moved while unseen is used after those
+    ``confirm`` frames (test_smoother_restarts_after_a_gap_and_reacquires_a_moved_tool)."""
+    world = make_world(8, 3.0, 1.5)
+    est = _lock(world, frames=20)
+    for t in range(20, 60):
+        q, fr = _frame(world, t)
+        est.step(fr, Observation(MODEL))
+    held = est.last.matrix()
+    occluder = bw_to_matrix(np.array([0.003, 0.0, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
+    q, fr = _frame(world, 60)
+    both = _obs(world, q, occluder, 60)
+    e = est.step(fr, Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1]))
+    assert est.reinit.rejected and est.reinit.reentry
+    np.testing.assert_allclose(e.E, held, atol=1e-9)
+    q, fr = _frame(world, 61)
+    est.step(fr, _obs(world, q, world.E_true, 61))
+    assert not est.reinit.rejected and not est.reinit.reentry
 
 
 def _history(world, policy, x_est, frames=16):

@@ -21,7 +21,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   below, without the lock's covariance gate, and the window challenge restarts (8 and
   16 frames after the gap). One frame cannot decide: the tool re-enters an edge at a
   time, and a mode fit to one line is set by the prior along what that line does not
-  see (docs/decisions/after-a-gap.md). A prediction that still fits keeps its lock.
+  see (docs/decisions/after-a-gap.md). Nor does the estimator take such frames: until a
+  frame is explained again, the first ``confirm`` it is not are outlier frames (an
+  occluder's edge is not the tool's; a tool that moved while unseen is used after them).
+  A prediction that still fits keeps its lock.
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
@@ -155,6 +158,7 @@ class SearchInit:
         self.used = 0                # frames used since the last start (the challenge's schedule)
         self.evidence: deque = deque(maxlen=EVIDENCE)   # (q, observation) of the latest frames explained
         self.vetoed = 0              # candidates the lock's own frames refused
+        self.reentry = False         # after a gap, no frame explained since (module doc)
 
     def report(self) -> dict[str, int]:
         """The policy's counts over the run: metrics.json's ``estimator_report`` (docs/sequence-format.md)."""
@@ -258,6 +262,7 @@ class SearchInit:
         self.candidate = None
         self.rejected = False
         self.unused = self.lock_run = self.reject_run = self.blind = 0
+        self.reentry = False
         self.evidence.clear()
         self._restart_challenge()
 
@@ -291,8 +296,10 @@ class SearchInit:
         if self.blind >= self.gap:
             self.evidence.clear()   # the lock's frames are as old as after a gap: E has moved with the arm
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
-        after_gap = self.since >= self.gap and not m_cur <= self.threshold \
-            and not self._coarse_fit(q, observation, x_cur)      # the prediction explains nothing
+        reentering = self.since >= self.gap or self.reentry
+        explained = not reentering or m_cur <= self.threshold or self._coarse_fit(q, observation, x_cur)
+        after_gap = self.since >= self.gap and not explained      # the prediction explains nothing
+        self.reentry = reentering and not explained
         if self.since >= self.gap:
             self.lock_run = 0     # a lock from before a gap is stale: it is earned again
             self.evidence.clear()
@@ -331,7 +338,8 @@ class SearchInit:
         towards the lock (explained: misfit <= lock_threshold; unexplained, above the
         threshold, ends a lock that is not yet established). A lock uses only frames it
         explains as well as those that formed it."""
-        if self.innovation_gate and self.locked and not after_gap and not m_cur <= self.lock_threshold:
+        if self.innovation_gate and ((self.locked and not after_gap and not m_cur <= self.lock_threshold)
+                                     or (self.reentry and self.reject_run < self.confirm)):
             self.rejected = True
             self.rejections += 1
             self.reject_run += 1
