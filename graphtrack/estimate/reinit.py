@@ -18,8 +18,8 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   on which the prediction explains little (misfit above the monitor's
   threshold, also at the search's coarse pixel sigma ``COARSE_SIGMA``: the tool
   moved while unseen) nothing is locked: x_c becomes a candidate for the test
-  below, without the lock's covariance gate, and the window challenge restarts (8 and
-  16 frames after the gap). One frame cannot decide: the tool re-enters an edge at a
+  below, without the lock's covariance gate, and the window challenge restarts (8
+  frames after the gap). One frame cannot decide: the tool re-enters an edge at a
   time, and a mode fit to one line is set by the prior along what that line does not
   see (docs/decisions/after-a-gap.md). Nor does the estimator take such frames: until a
   frame is explained again, the first ``confirm`` it is not are outlier frames (an
@@ -66,11 +66,11 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   ``prior_gate`` above) has run away (the lumped error never leaves it): the
   search is run around the prior's centre and its mode adopted at once.
 - Window challenge (one frame rarely decides between two modes; the modes of
-  different frames disagree as the tool moves): after 8 and 16 frames used since
-  the last start, the search runs on ``window`` frames (0: none; the smoother's 6)
-  spread over those frames, maximising sum_k log P(z_k | E(x)) + the hand-eye prior.
-  Its mode x_w is adopted (keeping the count: at most two challenges per start)
-  when it lies outside the current estimate's covariance gate and
+  different frames disagree as the tool moves): after 8 frames used since the last
+  start, the search runs on ``window`` frames (0: none; the smoother's 6) spread over
+  those frames, maximising sum_k log P(z_k | E(x)) + the hand-eye prior. Its mode x_w
+  is adopted (keeping the count: one challenge per start) when it lies outside the
+  current estimate's covariance gate and
 
       Lambda = sum_k [log P(z_k | E(x_w)) - log P(z_k | E(x_k))] > window * margin
 

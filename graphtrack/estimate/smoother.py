@@ -32,7 +32,7 @@ misfit): robust factors kept edges that are not the shaft's, or a Gauss-Newton s
 overshot. The pose before is reported, the frame is an outlier frame, and the window
 restarts with a prior at that pose and covariance (docs/decisions/refused-update.md).
 Both need the policy (``search``). Its window challenge (``search_window`` frames; 0: off)
-re-searches on several frames 8 and 16 frames after each start (window-challenge.md).
+re-searches on several frames 8 frames after each start (window-challenge.md).
 iSAM2 (default) or BatchFixedLagSmoother keeps the last ``lag`` s. Estimate of frame
 t: x_t right after frame t's update (filtered); cov/std: its marginal in the left
 (b, w) perturbation. iSAM2 relinearises at ``relinearize_threshold`` (rad / m of

@@ -1,7 +1,7 @@
 """The window challenge's search: one mode for several frames of a moving tool.
 
 One frame rarely decides between two modes; the modes of different frames disagree as
-the tool moves. After 8 and 16 frames used since a start (:func:`scheduled`), the
+the tool moves. After ``SCHEDULE`` (8) frames used since a start (:func:`scheduled`), the
 re-initialisation policy (:class:`graphtrack.estimate.reinit.SearchInit`) runs the global
 search of :mod:`graphtrack.estimate.startup` on ``window`` of the frames used since
 (evenly spread over its history of at most ``HISTORY``), maximising
@@ -23,13 +23,16 @@ from graphtrack.estimate.startup import SearchResult, global_search
 
 #: frames used that the window challenge keeps (it draws ``window`` of them)
 HISTORY = 16
+#: frames used since a start after which the challenge runs
+SCHEDULE = (8,)
 
 
 def scheduled(used: int) -> bool:
-    """The window challenge runs after 8 and 16 frames used since a start (later ones
-    switched to modes the scorer prefers and the smoother's edge-bias model does not:
-    docs/decisions/window-challenge.md)."""
-    return used in (8, 16)
+    """The window challenge runs once, after 8 frames used since a start: it takes a start
+    that settled on a wrong mode to the right one. Later ones mostly switched settled
+    estimates to modes the scorer (without the smoother's edge-bias state) prefers and the
+    truth does not (docs/decisions/window-challenge.md)."""
+    return used in SCHEDULE
 
 
 def window_search(scorer, history, window: int, x_cur: np.ndarray, spread: np.ndarray, rng,
