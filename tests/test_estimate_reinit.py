@@ -307,8 +307,9 @@ def test_after_a_gap_the_estimate_is_held_through_frames_it_does_not_explain():
     not taken as the tool's: the smoother predicts through the first ``confirm`` frames the
     prediction does not explain (its pose does not move; used, that one edge moved it
     12 mm). Once a frame is explained again (the tool back where it was) the re-entry ends
-    and the frames are used; a tool that really moved while unseen is used after those
-    ``confirm`` frames (test_smoother_restarts_after_a_gap_and_reacquires_a_moved_tool)."""
+    and the frames are used; of frames not explained, every (confirm + 1)-th is used, so a
+    tool that really moved while unseen is re-acquired
+    (test_smoother_restarts_after_a_gap_and_reacquires_a_moved_tool)."""
     world = make_world(8, 3.0, 1.5)
     est = _lock(world, frames=20)
     for t in range(20, 60):
@@ -324,6 +325,29 @@ def test_after_a_gap_the_estimate_is_held_through_frames_it_does_not_explain():
     q, fr = _frame(world, 61)
     est.step(fr, _obs(world, q, world.E_true, 61))
     assert not est.reinit.rejected and not est.reinit.reentry
+
+
+def test_after_a_gap_every_sixth_unexplained_frame_is_used():
+    """While no frame after a gap is explained, a frame is an outlier frame unless the
+    ``confirm`` (5) before it were: the policy, its estimate held at the truth, sees an
+    occluder's edge 3 mm off on every frame: 5 outlier frames, 1 used, 5 more."""
+    world = make_world(8, 3.0, 1.5)
+    policy = SearchInit(world.ctx, seed=0, monitor=False)
+    for t in range(12):
+        q, _ = _frame(world, t)
+        policy.propose(q, _obs(world, q, world.E_true, t), world.E_true, True)
+    for t in range(12, 52):
+        q, _ = _frame(world, t)
+        policy.propose(q, Observation(MODEL), world.E_true, False)
+    occluder = bw_to_matrix(np.array([0.003, 0.0, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
+    flags = []
+    for t in range(52, 64):
+        q, _ = _frame(world, t)
+        both = _obs(world, q, occluder, t)
+        policy.propose(q, Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1]),
+                       world.E_true, True)
+        flags.append(policy.rejected)
+    assert flags == [True] * 5 + [False] + [True] * 5 + [False]
 
 
 def _history(world, policy, x_est, frames=16):

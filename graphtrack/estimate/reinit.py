@@ -22,9 +22,10 @@ returns a new initial E (4x4), or None to keep tracking; the adopted search resu
   frames after the gap). One frame cannot decide: the tool re-enters an edge at a
   time, and a mode fit to one line is set by the prior along what that line does not
   see (docs/decisions/after-a-gap.md). Nor does the estimator take such frames: until a
-  frame is explained again, the first ``confirm`` it is not are outlier frames (an
-  occluder's edge is not the tool's; a tool that moved while unseen is used after them).
-  A prediction that still fits keeps its lock.
+  frame is explained again, one it does not explain is an outlier frame unless the
+  ``confirm`` before it were (an occluder's edge is not the tool's; every (confirm + 1)-th
+  is used, so a tool that moved while unseen is re-acquired). A prediction that still
+  fits keeps its lock.
 - When the divergence monitor fires, a lock exists that may be right (a partial
   or full occlusion also raises the misfit): x_c becomes a *candidate*, adopted
   only after a sequential likelihood-ratio test over the next ``confirm``
