@@ -297,10 +297,10 @@ class SearchInit:
         if self.blind >= self.gap:
             self.evidence.clear()   # the lock's frames are as old as after a gap: E has moved with the arm
         diverged = self.monitor is not None and self.monitor.update_misfit(m_cur)
-        reentering = self.since >= self.gap or self.reentry
-        explained = not reentering or m_cur <= self.threshold or self._coarse_fit(q, observation, x_cur)
-        after_gap = self.since >= self.gap and not explained      # the prediction explains nothing
-        self.reentry = reentering and not explained
+        # after a gap, until a frame is explained again: the prediction explains nothing here
+        self.reentry = (self.since >= self.gap or self.reentry) and not m_cur <= self.threshold \
+            and not self._coarse_fit(q, observation, x_cur)
+        after_gap = self.since >= self.gap and self.reentry
         if self.since >= self.gap:
             self.lock_run = 0     # a lock from before a gap is stale: it is earned again
             self.evidence.clear()
