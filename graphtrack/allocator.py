@@ -17,6 +17,7 @@ Elsewhere (macOS, Windows, musl) nothing is changed.
 from __future__ import annotations
 
 import ctypes
+import functools
 import platform
 
 #: blocks up to this size come from the heap (glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit)
@@ -25,15 +26,13 @@ MMAP_THRESHOLD = 32 << 20
 TRIM_THRESHOLD = 2 * MMAP_THRESHOLD
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3    # mallopt parameters, <malloc.h>
-_applied = False
 
 
+@functools.cache
 def keep_freed_memory() -> bool:
-    """Fix glibc malloc's mmap and trim thresholds (module doc) for this process; True when
-    they are set (now or by an earlier call), False where the C library is not glibc."""
-    global _applied
-    if _applied:
-        return True
+    """Fix glibc malloc's mmap and trim thresholds (module doc) for this process, once; True
+    when they are set, False where the C library is not glibc (then every later call returns
+    False at once: ``platform.libc_ver`` reads the interpreter's binary)."""
     if platform.system() != "Linux" or platform.libc_ver()[0] != "glibc":
         return False
     try:
@@ -41,5 +40,4 @@ def keep_freed_memory() -> bool:
     except (OSError, AttributeError):
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    _applied = bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
-    return _applied
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD)) and bool(mallopt(_M_TRIM_THRESHOLD, TRIM_THRESHOLD))
