@@ -36,6 +36,13 @@ def _obs(world, q, E, seed):
                        marker_noise=0.5).observation(MODEL)
 
 
+def _one_edge(world, q, E, seed):
+    """As :func:`_obs`, the first edge's pixel set alone (no markers): the tool re-entering,
+    or an occluder's edge."""
+    both = _obs(world, q, E, seed)
+    return Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1])
+
+
 def _frame(world, t):
     q = world.joints(t)
     return q, Frame(t, t / 30.0, None, q[:6], q[6])
@@ -294,8 +301,7 @@ def test_after_a_gap_one_edge_makes_a_candidate_not_an_adoption():
         assert policy.propose(q, Observation(MODEL), world.E_true, False) is None
     moved = bw_to_matrix(np.array([0.003, -0.002, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
     q, _ = _frame(world, 52)
-    both = _obs(world, q, moved, 52)
-    one = Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1])
+    one = _one_edge(world, q, moved, 52)
     count = policy.count
     assert policy.propose(q, one, world.E_true, True) is None
     assert policy.count == count and policy.candidate is not None
@@ -318,8 +324,7 @@ def test_after_a_gap_the_estimate_is_held_through_frames_it_does_not_explain():
     held = est.last.matrix()
     occluder = bw_to_matrix(np.array([0.003, 0.0, 0.0, 0.0, 0.0, 0.0])) @ world.E_true
     q, fr = _frame(world, 60)
-    both = _obs(world, q, occluder, 60)
-    e = est.step(fr, Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1]))
+    e = est.step(fr, _one_edge(world, q, occluder, 60))
     assert est.reinit.rejected and est.reinit.reentry
     np.testing.assert_allclose(e.E, held, atol=1e-9)
     q, fr = _frame(world, 61)
@@ -343,9 +348,7 @@ def test_after_a_gap_every_sixth_unexplained_frame_is_used():
     flags = []
     for t in range(52, 64):
         q, _ = _frame(world, t)
-        both = _obs(world, q, occluder, t)
-        policy.propose(q, Observation(MODEL, pixels=both.pixels[:1], edge_ids=both.edge_ids[:1]),
-                       world.E_true, True)
+        policy.propose(q, _one_edge(world, q, occluder, t), world.E_true, True)
         flags.append(policy.rejected)
     assert flags == [True] * 5 + [False] + [True] * 5 + [False]
 
