@@ -180,3 +180,29 @@ def test_refinement_on_the_raw_frame_through_the_distortion_finds_the_undistorte
     plain = refine_segments(raw, seg[None])[0]
     r2, t2 = line_through(plain[:2][None], plain[2:][None])
     assert abs(line_difference(r2[0], t2[0], rho, theta)[0]) > abs(dr)
+
+
+def test_an_edge_inside_the_shaft_beyond_the_window_is_found_by_a_wider_search():
+    # the net's band lies outside the silhouette, at times by more than the +-3 px window
+    # (a blurred or low-contrast edge); the rows' peaks then pile up on the window's inner
+    # end, and the search is repeated reaching into the shaft
+    rho, theta, width = 150.0, 0.35, 60.0
+    shaft = render_edge(rho, theta, inside=1.0, outside=0.0, blur=0.0).astype(float)
+    shaft *= 1.0 - render_edge(rho - width, theta, inside=1.0, outside=0.0, blur=0.0)
+    img = cv2.GaussianBlur((150.0 - 110.0 * shaft).astype(np.float32), (0, 0), 1.5).astype(np.uint8)
+    for shift in (4.5, 6.5):                # outside the shaft (edge 0's outside: larger rho)
+        out = refine_segments(img, _two_segments(rho, theta, width, shift))
+        assert _edge_error(out[0], rho, theta) < 0.1
+        assert _edge_error(out[1], rho - width, theta) < 0.1
+
+
+def test_an_edge_outside_the_shaft_beyond_the_window_is_not_searched_for():
+    # outwards lies the background, where a stronger parallel edge merges with the
+    # silhouette's under blur (the module's known limit): no wider search there
+    rho, theta, width = 150.0, 0.35, 60.0
+    shaft = render_edge(rho, theta, inside=1.0, outside=0.0, blur=0.0).astype(float)
+    shaft *= 1.0 - render_edge(rho - width, theta, inside=1.0, outside=0.0, blur=0.0)
+    img = cv2.GaussianBlur((150.0 - 110.0 * shaft).astype(np.float32), (0, 0), 0.8).astype(np.uint8)
+    segs = _two_segments(rho, theta, width, -4.5)      # 4.5 px inside the shaft
+    out = refine_segments(img, segs)
+    np.testing.assert_array_equal(out[0], segs[0])

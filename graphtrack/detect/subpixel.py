@@ -19,7 +19,12 @@ heatmap, good to a pixel or two) is moved onto the image's edge:
 4. a total-least-squares line through the peaks, refitted on those within
    ``inlier`` px of it, is the refined edge when it keeps at least
    ``min_fraction`` of the rows (and ``min_samples``); the refined segment is
-   e^a, e^b projected on it. Otherwise the segment is kept as detected.
+   e^a, e^b projected on it;
+5. when steps 3-4 find no line and most rows' peak sits on the window's inner end
+   (the net's band lies outside the silhouette, on a blurred or low-contrast edge
+   by more than ``search``), they run once more over t in [-search, search +
+   ``reach``], into the shaft only: outwards lies the background, whose edges can
+   merge with the silhouette's (below). Otherwise the segment is kept as detected.
 
 A second edge inside the window (the black border an undistortion leaves, a
 stripe, a tissue fold) makes a row ambiguous, and an edge with many such rows
@@ -36,7 +41,7 @@ docs/decisions/subpixel-edges.md.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -49,6 +54,7 @@ class SubpixelConfig:
     """Refinement settings (px of the full-resolution image, fractions)."""
 
     search: float = 3.0        #: px either side of the detected segment
+    reach: float = 6.0         #: px further into the shaft searched when its edge lies beyond the window
     step: float = 4.0          #: px between samples along it
     end_margin: float = 6.0    #: px left out at each end
     blur: float = 1.0          #: Gaussian sigma before the gradient
@@ -95,11 +101,13 @@ class EdgeProfiles:
 
 
 def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0.0, 0.0),
-                  config: SubpixelConfig | None = None, toward=None, camera=None) -> EdgeProfiles | None:
+                  config: SubpixelConfig | None = None, toward=None, camera=None,
+                  centre: float = 0.0) -> EdgeProfiles | None:
     """Sample the normal gradient across ``segment`` (module doc, step 2); None
     for a segment too short for ``min_samples`` rows. gx, gy: the gradient of a
     box whose top-left pixel is ``origin`` = (x0, y0) in image pixels; toward: a
-    point on the normal's side (the other edge of the shaft), or None.
+    point on the normal's side (the other edge of the shaft), or None; centre: px
+    along n of the window's centre (t in centre +- search).
 
     camera: gx, gy are the gradient of that camera's RAW image while the segment is in
     undistorted pixels. Each sample p is then read at its raw pixel r(p) =
@@ -117,7 +125,7 @@ def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0
     if toward is not None and n @ (np.asarray(toward, float) - a) < 0:
         n = -n
     s = np.arange(cfg.end_margin, length - cfg.end_margin + 1e-9, cfg.step)
-    t = np.arange(-cfg.search, cfg.search + 1e-9, 0.5)
+    t = centre + np.arange(-cfg.search, cfg.search + 1e-9, 0.5)
     Q = a + s[:, None, None] * d + t[None, :, None] * n                  # (S, T, 2) image px
     dn = np.broadcast_to(n, Q.shape)
     if camera is not None:
@@ -217,7 +225,7 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
         return segs
     img = np.asarray(image)
     h, w = img.shape[:2]
-    pad = cfg.search + 3.0 * max(cfg.blur, 0.5) + 2.0
+    pad = cfg.search + cfg.reach + 3.0 * max(cfg.blur, 0.5) + 2.0
     if camera is not None:
         pad *= 1.5                   # the distortion stretches the +-search window locally
     pts = _box_points(segs[ok], camera)
@@ -243,7 +251,28 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
     for i, p in prof.items():
         if p is None:
             continue
-        r = fit_edge(p, p.polarity_votes() if joint is None else joint, cfg)
+        polarity = p.polarity_votes() if joint is None else joint
+        r = fit_edge(p, polarity, cfg)
+        if r is None and int(i) in toward and _beyond_inner_end(p, polarity, cfg):
+            r = _search_inward(gx, gy, segs[i], (x0, y0), cfg, polarity, toward[int(i)], camera)
         if r is not None:
             segs[i] = r
     return segs
+
+
+def _beyond_inner_end(p: EdgeProfiles, polarity: float, config: SubpixelConfig) -> bool:
+    """Most rows' peak of the given polarity sits on the window's last two samples
+    along p.n (into the shaft): the edge lies beyond the window, inside the band."""
+    g = p.g * (1.0 if polarity >= 0 else -1.0)
+    k = np.argmax(g, axis=1)
+    strong = g[np.arange(len(k)), k] > 0
+    return bool(strong.sum() >= config.min_samples and np.mean(k[strong] >= g.shape[1] - 2) >= 0.5)
+
+
+def _search_inward(gx, gy, segment: np.ndarray, origin, config: SubpixelConfig, polarity: float,
+                   toward, camera) -> np.ndarray | None:
+    """Steps 2-4 once more over t in [-search, search + reach] (into the shaft): the
+    refined segment (the detected ends projected on the refined line), or None."""
+    wide = replace(config, search=config.search + 0.5 * config.reach)
+    p = edge_profiles(gx, gy, segment, origin, wide, toward, camera, centre=0.5 * config.reach)
+    return None if p is None else fit_edge(p, polarity, wide)
