@@ -262,7 +262,7 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
 
 def _beyond_inner_end(p: EdgeProfiles, polarity: float, config: SubpixelConfig) -> bool:
     """Most rows' peak of the given polarity sits on the window's last two samples
-    along p.n (into the shaft): the edge lies beyond the window, inside the band."""
+    along p.n (into the shaft): the edge lies beyond the window, further into the shaft."""
     g = p.g * (1.0 if polarity >= 0 else -1.0)
     k = np.argmax(g, axis=1)
     strong = g[np.arange(len(k)), k] > 0
