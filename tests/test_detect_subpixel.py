@@ -182,14 +182,19 @@ def test_refinement_on_the_raw_frame_through_the_distortion_finds_the_undistorte
     assert abs(line_difference(r2[0], t2[0], rho, theta)[0]) > abs(dr)
 
 
+def _shaft_image(rho, theta, width, blur):
+    """A dark (40) shaft between the edges rho and rho - width on a 150 background, blurred."""
+    shaft = render_edge(rho, theta, inside=1.0, outside=0.0, blur=0.0).astype(float)
+    shaft *= 1.0 - render_edge(rho - width, theta, inside=1.0, outside=0.0, blur=0.0)
+    return cv2.GaussianBlur((150.0 - 110.0 * shaft).astype(np.float32), (0, 0), blur).astype(np.uint8)
+
+
 def test_an_edge_inside_the_shaft_beyond_the_window_is_found_by_a_wider_search():
     # the net's band lies outside the silhouette, at times by more than the +-3 px window
     # (a blurred or low-contrast edge); the rows' peaks then pile up on the window's inner
     # end, and the search is repeated reaching into the shaft
     rho, theta, width = 150.0, 0.35, 60.0
-    shaft = render_edge(rho, theta, inside=1.0, outside=0.0, blur=0.0).astype(float)
-    shaft *= 1.0 - render_edge(rho - width, theta, inside=1.0, outside=0.0, blur=0.0)
-    img = cv2.GaussianBlur((150.0 - 110.0 * shaft).astype(np.float32), (0, 0), 1.5).astype(np.uint8)
+    img = _shaft_image(rho, theta, width, 1.5)
     for shift in (4.5, 6.5):                # outside the shaft (edge 0's outside: larger rho)
         out = refine_segments(img, _two_segments(rho, theta, width, shift))
         assert _edge_error(out[0], rho, theta) < 0.1
@@ -200,9 +205,7 @@ def test_an_edge_outside_the_shaft_beyond_the_window_is_not_searched_for():
     # outwards lies the background, where a stronger parallel edge merges with the
     # silhouette's under blur (the module's known limit): no wider search there
     rho, theta, width = 150.0, 0.35, 60.0
-    shaft = render_edge(rho, theta, inside=1.0, outside=0.0, blur=0.0).astype(float)
-    shaft *= 1.0 - render_edge(rho - width, theta, inside=1.0, outside=0.0, blur=0.0)
-    img = cv2.GaussianBlur((150.0 - 110.0 * shaft).astype(np.float32), (0, 0), 0.8).astype(np.uint8)
+    img = _shaft_image(rho, theta, width, 0.8)
     segs = _two_segments(rho, theta, width, -4.5)      # 4.5 px inside the shaft
     out = refine_segments(img, segs)
     np.testing.assert_array_equal(out[0], segs[0])
