@@ -99,6 +99,13 @@ class EdgeProfiles:
         strongest = self.g[np.arange(len(self.s)), np.argmax(np.abs(self.g), axis=1)]
         return float(np.sum(np.sign(strongest)))
 
+    def peaks(self, polarity: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(g with the polarity's sign, each row's peak sample index k, its value) for
+        ``polarity`` (+1: the gradient points along n)."""
+        g = self.g * (1.0 if polarity >= 0 else -1.0)
+        k = np.argmax(g, axis=1)
+        return g, k, g[np.arange(len(k)), k]
+
 
 def edge_profiles(gx: np.ndarray, gy: np.ndarray, segment: np.ndarray, origin=(0.0, 0.0),
                   config: SubpixelConfig | None = None, toward=None, camera=None,
@@ -150,10 +157,8 @@ def fit_edge(p: EdgeProfiles, polarity: float, config: SubpixelConfig | None = N
     around the row's maximum (3 samples leave a bias of up to 0.13 px that
     depends on where the edge falls in the pixel grid)."""
     cfg = config or SubpixelConfig()
-    g = p.g * (1.0 if polarity >= 0 else -1.0)
+    g, k, peak = p.peaks(polarity)
     S, T = g.shape
-    k = np.argmax(g, axis=1)
-    peak = g[np.arange(S), k]
     inside = (k >= 2) & (k <= T - 3) & (peak > 0)
     if inside.sum() < cfg.min_samples:
         return None
@@ -253,8 +258,8 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
             continue
         polarity = p.polarity_votes() if joint is None else joint
         r = fit_edge(p, polarity, cfg)
-        if r is None and int(i) in toward and _beyond_inner_end(p, polarity, cfg):
-            r = _search_inward(gx, gy, segs[i], (x0, y0), cfg, polarity, toward[int(i)], camera)
+        if r is None and i in toward and _beyond_inner_end(p, polarity, cfg):
+            r = _search_inward(gx, gy, segs[i], (x0, y0), cfg, polarity, toward[i], camera)
         if r is not None:
             segs[i] = r
     return segs
@@ -263,9 +268,8 @@ def refine_segments(image: np.ndarray, segments: np.ndarray, config: SubpixelCon
 def _beyond_inner_end(p: EdgeProfiles, polarity: float, config: SubpixelConfig) -> bool:
     """Most rows' peak of the given polarity sits on the window's last two samples
     along p.n (into the shaft): the edge lies beyond the window, further into the shaft."""
-    g = p.g * (1.0 if polarity >= 0 else -1.0)
-    k = np.argmax(g, axis=1)
-    strong = g[np.arange(len(k)), k] > 0
+    g, k, peak = p.peaks(polarity)
+    strong = peak > 0
     return bool(strong.sum() >= config.min_samples and np.mean(k[strong] >= g.shape[1] - 2) >= 0.5)
 
 
