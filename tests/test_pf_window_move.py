@@ -64,7 +64,7 @@ def test_a_cloud_at_the_mode_gains_nothing():
 def _frames(E, n, rng):
     out = []
     for t in range(n):
-        obs = observe(SCENE, Q[t], E, rng, marker_model="point", pixel_noise=0.3, outliers=0.0)
+        obs = observe(SCENE, Q[t], E, rng, pixel_noise=0.3, outliers=0.0)
         out.append((Frame(t, t / 30.0, None, Q[t, :6], Q[t, 6]), obs.observation("line-intensities", True)))
     return out
 

@@ -10,7 +10,10 @@ Motion: x_t = x_{t-1} + v_t, v_t ~ N(0, diag(s_b^2 I_3, s_w^2 I_3)), s_b =
 N(0, diag(i_b^2 I_3, i_w^2 I_3)) (``init_std_b`` m, ``init_std_w`` rad).
 Update: log w_n += log P(z_t | E(x_n)) (:mod:`graphtrack.estimate.observation_models`,
 all particles projected at once by :mod:`graphtrack.estimate.pf.projection`), in log
-space; a frame without shaft or markers leaves the weights alone. When ESS =
+space; a frame without shaft or markers leaves the weights alone. Markers are the
+paper's points: with ``marker_discs`` a detection of a painted disc is first moved to
+where the disc's centre projects, by the offset of the disc's image centroid from it at
+the filter's estimate (:mod:`graphtrack.estimate.pf.disc_offsets`). When ESS =
 1 / sum w_n^2 < ``resample_threshold`` * N: systematic resampling, then roughening
 by kernel shrinkage (Liu & West 2001), h = ``roughening``:
 
@@ -42,12 +45,13 @@ from graphtrack.estimate.options import MOTION_SIGMA_B, MOTION_SIGMA_W, PARTICLE
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
+from graphtrack.estimate.pf.disc_offsets import DiscOffsets
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
 from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, window_mode
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
-from graphtrack.geometry.se3 import matrix_to_bw, project_to_so3, so3_exp_batch
+from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw, project_to_so3, so3_exp_batch
 from graphtrack.robot.features import base_features
 
 
@@ -70,7 +74,10 @@ class ParticleFilter:
     shift the cloud to the mode of the frames since its start after the 8th and 16th
     frame it weighs (:mod:`graphtrack.estimate.pf.window_move`; independent of
     ``search``, which only supplies its prior spread: ``EstimatorOptions(search=False)``,
-    the CLI's ``--no-search``, turns both off).
+    the CLI's ``--no-search``, turns both off); marker_discs: move each painted disc's
+    detection to its centre's projection before scoring it as a point
+    (:mod:`graphtrack.estimate.pf.disc_offsets`; off: the paper's point markers as
+    detected).
     Each Observation carries its own ``model``, which is what is scored.
     """
 
@@ -97,7 +104,8 @@ class ParticleFilter:
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
                  search_hypotheses: int = 2048, reinit_gap: int = 30,
-                 marker_gate_follows_covariance: bool = False, window_move: bool = True):
+                 marker_gate_follows_covariance: bool = False, window_move: bool = True,
+                 marker_discs: bool = True):
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
@@ -110,6 +118,7 @@ class ParticleFilter:
         self.window_move = bool(window_move)       # pf/window_move.py
         self._move_rng = np.random.default_rng([int(seed), 1])   # its own draws: the cloud's stay as they were
         self.window_moves = 0
+        self.discs = DiscOffsets(ctx.robot) if marker_discs and markers else None   # pf/disc_offsets.py
         self.motion_std = np.array([motion_std_b] * 3 + [motion_std_w] * 3, dtype=float)
         self.init_std = np.array([init_std_b] * 3 + [init_std_w] * 3, dtype=float)
         self.resample_threshold = float(resample_threshold)
@@ -260,11 +269,14 @@ class ParticleFilter:
         self.t += 1
         h = self._project(q)
         informative = self._informative(observation)
+        E_hat = None
         if self.search is not None and self.search.propose(q, observation, self.E, informative,
                                                            self.cov) is not None:
             self._redraw(self.search.result)  # start-up, long gap or divergence: global search (left view)
             self._window = []
             h = self._project(q)
+            E_hat = bw_to_matrix(self.search.result.x) @ self.E0
+        observation, right = self._disc_centres(q, E_hat, observation, right)
         if self.gate_follows and informative and len(observation.markers):
             self._gate_markers(q)
         rejected = self.search is not None and self.search.rejected   # an outlier frame: predict through it
@@ -287,6 +299,21 @@ class ParticleFilter:
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est
+
+    def _disc_centres(self, q, E_hat: np.ndarray, observation, right):
+        """Both images' observations with their painted-disc detections moved to the
+        discs' centres at the estimate E_hat (None: the filter's E;
+        :mod:`graphtrack.estimate.pf.disc_offsets`), where the point markers of the
+        likelihood predict them; as they are with ``marker_discs`` off."""
+        if self.discs is None:
+            return observation, right
+        E_hat = self.E if E_hat is None else E_hat
+        links = self._frame_geometry(q).marker_links
+        observation = self.discs.centre_equivalent(observation, q, E_hat, self.K, self.marker_gate, links)
+        if right is not None and self.ctx.stereo:
+            right = self.discs.centre_equivalent(right, q, self.ctx.right_T_left @ E_hat, self.ctx.right.K,
+                                                 self.marker_gate, links)
+        return observation, right
 
     def _moments(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The cloud's weighted mean (6,) and covariance (6, 6) of x under weights w."""

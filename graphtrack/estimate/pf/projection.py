@@ -37,12 +37,14 @@ class FrameGeometry:
     directions), then the centre of the shaft's distal end when robot.json gives it
     (``has_end``); r: shaft radius (m); on_shaft (M,): markers painted on the
     shaft (visible only on the side facing the camera; their normals are the
-    outward radial directions, zero for the others)."""
+    outward radial directions, zero for the others); marker_links (M, 4, 4):
+    base_T_link of the link each marker is painted on."""
 
     V: np.ndarray
     r: float
     on_shaft: np.ndarray
     has_end: bool = False
+    marker_links: np.ndarray | None = None
 
 
 def frame_geometry(robot, q: np.ndarray, E0: np.ndarray) -> FrameGeometry:
@@ -60,7 +62,7 @@ def frame_geometry(robot, q: np.ndarray, E0: np.ndarray) -> FrameGeometry:
         pos = np.array([p.position for p in feats], float)
         pts = np.einsum("kij,kj->ki", Tp[:, :3, :3], pos) + Tp[:, :3, 3]
     else:
-        pts = np.zeros((0, 3))
+        Tp, pts = np.zeros((0, 4, 4)), np.zeros((0, 3))
     R0, t0 = E0[:3, :3], E0[:3, 3]
     rel = pts - p0
     radial = rel - (rel @ d)[:, None] * d
@@ -70,7 +72,7 @@ def frame_geometry(robot, q: np.ndarray, E0: np.ndarray) -> FrameGeometry:
     cols = [(R0 @ p0 + t0)[:, None], (R0 @ d)[:, None], (pts @ R0.T + t0).T, (normals @ R0.T).T]
     if sf.end is not None:
         cols.append((R0 @ (p0 + sf.end * d) + t0)[:, None])
-    return FrameGeometry(np.concatenate(cols, axis=1), r, on_shaft, sf.end is not None)
+    return FrameGeometry(np.concatenate(cols, axis=1), r, on_shaft, sf.end is not None, Tp)
 
 
 @dataclass
