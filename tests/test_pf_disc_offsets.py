@@ -4,23 +4,24 @@ import dataclasses
 import numpy as np
 
 from graphtrack.detect.base import Observation
+from graphtrack.estimate.particle_filter import ParticleFilter
 from graphtrack.estimate.pf.disc_offsets import DiscOffsets
 from graphtrack.robot.features import base_features
-from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
+from graphtrack.sim.synthetic import Scene, joint_trajectory, make_scene, observe, stereo_sequence
 
 SCENE = make_scene()
 Q = joint_trajectory(60)
 X_TRUE = np.r_[0.002, -0.001, 0.001, np.radians([1.0, -0.5, 0.5])]
 
 
-def _centres(q, E):
+def _centres(q, E, camera=SCENE.camera, robot=SCENE.robot):
     """The markers' centres projected through E (undistorted px), and which face the camera
     (the synthetic world's markers: the same selection and order as its detections)."""
-    F = base_features(SCENE.robot, q).transformed(E)
+    F = base_features(robot, q).transformed(E)
     p0, d = F.shaft_p0[0], F.shaft_d[0]
     axis_pt = p0 + ((F.points - p0) @ d)[:, None] * d
     facing = np.sum((F.points - axis_pt) * (-F.points), axis=1) > 0
-    return SCENE.camera.project_undistorted(F.points), facing
+    return camera.project_undistorted(F.points), facing
 
 
 def test_moved_detections_are_the_centres_projections():
@@ -45,16 +46,46 @@ def test_moved_detections_are_the_centres_projections():
 
 
 def test_right_camera_through_its_extrinsic():
-    """The right image's discs are moved through right_T_left . E and K2."""
+    """The filter moves each image's discs through its own camera: the right image's
+    through right_T_left . E and K2 (which differ from the left's), both landing on the
+    centres' projections in their image."""
+    st = stereo_sequence(12, seed=4, scene=SCENE, pixel_noise=0.0)
+    assert not np.allclose(st.right.K, st.camera.K)
+    pf = ParticleFilter(st.ctx, particles=16, seed=0, search=False)
+    for t in (0, 6, 11):
+        f, g = st.frames[t], st.right_frames[t]
+        left, right = pf._disc_centres(f.q, f.E_true, f.observation("line-intensities", True),
+                                       g.observation("line-intensities", True))
+        centre, facing = _centres(f.q, f.E_true, st.camera)
+        np.testing.assert_allclose(left.markers, centre[facing], atol=1e-6)
+        centre, facing = _centres(f.q, st.right_T_left @ f.E_true, st.right)
+        assert np.abs(g.markers - centre[facing]).max() > 0.5
+        np.testing.assert_allclose(right.markers, centre[facing], atol=1e-6)
+
+
+def test_point_markers_among_discs_keep_their_detections():
+    """A robot with one point marker among its discs: the point's detection pairs with
+    its own marker (delta = 0) and stays, also when the discs' detections are missing and
+    a wide gate would let it pair with a disc; the discs' detections land on their centres."""
+    robot = dataclasses.replace(SCENE.robot, point_features=[
+        dataclasses.replace(p, radius=0.0) if k == 0 else p for k, p in enumerate(SCENE.robot.point_features)])
+    world = Scene(robot, SCENE.camera, SCENE.E0)
     E = SCENE.true_E(X_TRUE)
-    C = np.eye(4)
-    C[:3, :3] = np.array([[np.cos(0.03), 0.0, np.sin(0.03)], [0.0, 1.0, 0.0], [-np.sin(0.03), 0.0, np.cos(0.03)]])
-    C[:3, 3] = [-0.005, 0.0, 0.0002]
-    f = observe(SCENE, Q[10], C @ E, np.random.default_rng(0), pixel_noise=0.0)
-    obs = f.observation("line-intensities", True)
-    centre, facing = _centres(Q[10], C @ E)
-    moved = DiscOffsets(SCENE.robot).centre_equivalent(obs, Q[10], C @ E, SCENE.camera.K, gate=20.0)
-    np.testing.assert_allclose(moved.markers, centre[facing], atol=1e-6)
+    discs = DiscOffsets(robot)
+    checked = 0
+    for t in range(0, 60, 6):
+        obs = observe(world, Q[t], E, np.random.default_rng(t), pixel_noise=0.0).observation("line-intensities", True)
+        centre, facing = _centres(Q[t], E, robot=robot)
+        seen = np.flatnonzero(facing)
+        if not facing[0] or len(seen) < 2:
+            continue
+        moved = discs.centre_equivalent(obs, Q[t], E, SCENE.camera.K, gate=1000.0)
+        np.testing.assert_allclose(moved.markers, centre[seen], atol=1e-6)
+        alone = dataclasses.replace(obs, markers=obs.markers[:1])     # the discs' detections missing
+        moved = discs.centre_equivalent(alone, Q[t], E, SCENE.camera.K, gate=1000.0)
+        np.testing.assert_allclose(moved.markers, centre[:1], atol=1e-6)
+        checked += 1
+    assert checked >= 3, checked
 
 
 def test_unpaired_detections_and_point_markers_stay():

@@ -304,7 +304,9 @@ class ParticleFilter:
         """Both images' observations with their painted-disc detections moved to the
         discs' centres at the estimate E_hat (None: the filter's E;
         :mod:`graphtrack.estimate.pf.disc_offsets`), where the point markers of the
-        likelihood predict them; as they are with ``marker_discs`` off."""
+        likelihood predict them; as they are with ``marker_discs`` off. Pairs within the
+        previous frame's marker gate (this frame's is set after it), and the window move
+        keeps the moved observations."""
         if self.discs is None:
             return observation, right
         E_hat = self.E if E_hat is None else E_hat

@@ -8,13 +8,14 @@ disc is seen obliquely or near a silhouette
 
     delta_k(E) = c_k(E) - pi(P_k; E)          (px, undistorted)
 
-changes slowly with E (1 mm and 0.5 deg away it moves by < 0.05 px,
-docs/decisions/painted-disc-markers.md), so it is taken once per frame and image at
+changes slowly with E (1 mm and 0.5 deg away it moves typically by <= 0.05 px, up to
+~0.2 px near grazing; docs/decisions/painted-disc-markers.md), so it is taken once per frame and image at
 the filter's estimate E_hat, and each detection u_j paired with marker k (Hungarian,
 :func:`factors.marker.associate`, at the centroids c_k(E_hat), within the marker
 gate) is replaced by u_j - delta_k: every hypothesis is then scored against where its
 point model expects the disc's centre. A disc hidden at E_hat (every sample facing
-away), a point marker, and a detection paired with none are left as they are.
+away) and a detection paired with none are left as they are; a detection paired with a
+point marker (delta = 0) takes part in the pairing and stays where it is.
 
 The discs are sampled once (:func:`graphtrack.robot.features.marker_discs`), in the
 frames of the links they are painted on; a frame moves them by its links' poses.
@@ -72,6 +73,8 @@ class DiscOffsets:
         P = (np.matmul(self.P[:, None, :], Rt) + t)[:, 0]
         z = np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)
         centre = np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], -1)
+        point = ~np.any(self.N != 0, axis=(1, 2))          # a point marker: its detection is its centre
+        c[point] = centre[point]
         return c, c - centre
 
     def centre_equivalent(self, observation, q: np.ndarray, T: np.ndarray, K: np.ndarray, gate: float,
