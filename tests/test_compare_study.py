@@ -81,7 +81,7 @@ def test_failing_cell_is_reported_and_the_rest_completes(rec, tmp_path, capsys):
     (bad / "robot.json").write_text("{ not json")
     out = tmp_path / "study"
     rc = _compare([rec, bad], out, "--estimators", "kinematics", "--workers", "2")
-    assert rc == 0
+    assert rc == 2                    # the study is written, and its exit status says a cell failed
     assert (out / "runs" / "rec" / "kinematics" / "done.json").is_file()
     assert not (out / "runs" / "broken" / "kinematics" / "done.json").exists()
     assert json.loads((out / "runs" / "broken" / "kinematics" / "error.json").read_text())["error"]
@@ -91,7 +91,8 @@ def test_failing_cell_is_reported_and_the_rest_completes(rec, tmp_path, capsys):
         rows = list(csv.reader(f))
     assert rows[0] == ["observation", "estimator", "rec", "rec_std", "broken", "broken_std"]
     assert rows[1][4] == "error" and float(rows[1][2]) >= 0
-    assert "broken/kinematics failed" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "broken/kinematics failed" in err and "graphtrack: error: 1 cell(s) failed" in err
 
 
 def test_unknown_estimator_is_input_error(rec, tmp_path, capsys):

@@ -40,7 +40,9 @@ def make_seq(seq: Path, calib: Calibration, n=6, right=True, drop=()):
     robot = {"DH_params": [{"type": "revolute", "alpha": 0, "A": 0, "theta": 0, "D": 0}] * 6, "has_gripper": True}
     (seq / "robot.json").write_text(json.dumps(robot))
     save_calibration(seq / "camera_calibration.yaml", calib)
-    save_handeye(seq / "handeye.yaml", np.eye(4))
+    E = np.eye(4)
+    E[2, 3] = 0.1                       # the arm's base 100 mm in front of the camera
+    save_handeye(seq / "handeye.yaml", E)
     rng = np.random.default_rng(3)
     frames = [NS(stamp=1_600_000_000.0 + i / 30, image=rng.integers(0, 256, (H, W, 3), dtype=np.uint8),
                  joints=rng.normal(size=6), jaw=0.1,

@@ -24,6 +24,14 @@ class HelpFormatter(argparse.HelpFormatter):
         return text + " (default: %(default)s)"
 
 
+def output_path(value: str) -> str:
+    """argparse ``type`` of an output path: an empty one (``--out ''``, which would
+    silently mean the current folder) is refused."""
+    if not value.strip():
+        raise argparse.ArgumentTypeError("an empty path would mean the current folder: name the output")
+    return value
+
+
 def add_source_arguments(p) -> None:
     """--arm and the topic overrides (bag recordings; the folder form reads only --arm)."""
     g = p.add_argument_group("recording")

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 
+from graphtrack.commands.common import output_path
 from graphtrack.commands.track import (FORMATTER, add_detection_arguments, add_estimator_arguments,
                                        estimator_options_from_args)
 from graphtrack.detect.base import OBSERVATION_MODELS
@@ -53,6 +54,8 @@ def run(args) -> int:
             print(f"note: {n}")
     for rec, key, msg in data["errors"]:
         print(f"graphtrack: cell {rec}/{key} failed: {msg}", file=sys.stderr)
+    if data["errors"]:   # the table holds the other cells; a re-run recomputes only the failed ones
+        raise InputError(f"{len(data['errors'])} cell(s) failed (listed above and in {args.out}/table.md)")
     return 0
 
 
@@ -64,7 +67,7 @@ def add_parser(sub):
                                    "a runtime table and accumulated-error plots. Resumable: finished "
                                    "cells (done.json) are reused.")
     p.add_argument("sequences", nargs="+", metavar="SEQ", help="recording folders")
-    p.add_argument("--out", required=True, metavar="DIR", help="study folder")
+    p.add_argument("--out", required=True, type=output_path, metavar="DIR", help="study folder")
     p.add_argument("--estimators", default=",".join(StudyOptions().estimators),
                    help="comma-separated estimators, or all")
     p.add_argument("--observations", default="all",

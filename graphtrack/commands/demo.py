@@ -14,6 +14,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from graphtrack.commands.common import output_path
 from graphtrack.commands.track import FORMATTER
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.errors import InputError
@@ -94,7 +95,7 @@ def add_parser(sub):
                        description="Simulate a structured and a tissue recording (cached), track them "
                                    "with the kinematics baseline, the particle filter and the smoother, "
                                    "and write the error table, plots and an overlay video.")
-    p.add_argument("--out", default="graphtrack-demo", metavar="DIR",
+    p.add_argument("--out", default="graphtrack-demo", type=output_path, metavar="DIR",
                    help="output folder")
     p.add_argument("--frames", type=int, default=FRAMES, help=argparse.SUPPRESS)
     p.add_argument("--quiet", action="store_true", help="no progress bars")

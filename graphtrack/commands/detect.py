@@ -24,6 +24,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from graphtrack.commands.common import output_path
 from graphtrack.commands.track import FORMATTER, add_detection_arguments
 from graphtrack.detect import detect_raw, make_detector
 from graphtrack.detect.draw import draw_detection
@@ -140,6 +141,10 @@ def run(args) -> int:
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
                            stereo=not args.mono)
+    if res["frames"] == res["frames_skipped"]:   # never exit 0 with nothing detected
+        raise InputError(f"{args.sequence}: no frame could be detected on: {res['frames_skipped']} of "
+                         f"{res['frames']} frames skipped (images missing or corrupt, or joints unusable); "
+                         f"{args.out}/detections.csv holds only its header")
     if not args.quiet:
         print(f"{res['frames']} frames ({res['frames_skipped']} skipped), detector median "
               f"{res['ms_median']:.1f} ms; wrote {args.out}/detections.csv"
@@ -152,7 +157,7 @@ def add_parser(sub):
                        description="Detect the shaft edges, pixel sets and markers in every frame and "
                                    "write detections.csv (and --video detections.mp4).")
     p.add_argument("sequence", metavar="SEQ", help="recording folder")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", required=True, type=output_path, metavar="DIR", help="output folder")
     add_detection_arguments(p)
     p.add_argument("--video", action="store_true", help="also write detections.mp4")
     p.add_argument("--max-frames", type=int, default=None, metavar="N", help="detect on at most N frames (default: all)")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from graphtrack.commands.common import HelpFormatter
+from graphtrack.commands.common import HelpFormatter, output_path
 from graphtrack.errors import InputError
 from graphtrack.robot.description import load_dvrk_config, load_robot_json, save_robot_json
 from graphtrack.robot.psm import psm_large_needle_driver
@@ -49,7 +49,7 @@ def add_parser(sub) -> None:
     p.add_argument("arm_config", metavar="ARM.json", help="dVRK arm file (joints 1-3), e.g. psm.json")
     p.add_argument("tool_config", metavar="TOOL.json",
                    help="dVRK tool file (joints 4-6, jaw), e.g. LARGE_NEEDLE_DRIVER_400006.json")
-    p.add_argument("--out", required=True, metavar="FILE", help="robot.json to write")
+    p.add_argument("--out", required=True, type=output_path, metavar="FILE", help="robot.json to write")
     p.add_argument("--features-from", metavar="ROBOT.json", default=None,
                    help="take the visual features from this robot.json (default: graphtrack's Large Needle Driver model)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing --out file")

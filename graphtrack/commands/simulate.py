@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import re
 
-from graphtrack.commands.common import HelpFormatter
+from graphtrack.commands.common import HelpFormatter, output_path
 from graphtrack.errors import InputError
 from graphtrack.sim import simulate
 
@@ -20,7 +20,7 @@ def add_parser(sub) -> None:
                        formatter_class=HelpFormatter,
                        description="Render a synthetic dVRK PSM + Large Needle Driver recording in the "
                                    "sequence format, plus truth.csv (true E_t and tool tip).")
-    p.add_argument("out", metavar="OUT", help="output folder")
+    p.add_argument("out", metavar="OUT", type=output_path, help="output folder")
     p.add_argument("--scene", default="structured", help="structured (white bench) or tissue")
     p.add_argument("--frames", type=int, default=300, help="number of frames (30 fps)")
     p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same recording)")

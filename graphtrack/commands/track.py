@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
-from graphtrack.commands.common import HelpFormatter, add_source_arguments, add_threads_argument, source_from_args
+from graphtrack.commands.common import HelpFormatter, add_source_arguments, add_threads_argument, output_path, source_from_args
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.estimate import ESTIMATORS
 from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
 from graphtrack.errors import InputError
-from graphtrack.io.run_output import prepare_run_dir, require_tracked
+from graphtrack.io.run_output import prepare_run_dir, require_tool_in_front, require_tracked
 from graphtrack.track import TrackOptions, track
 
 FORMATTER = HelpFormatter
@@ -66,7 +67,7 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
                            smoother_options: bool = True) -> None:
     """Arguments shared by ``track`` and ``refine`` (refine: the batch only, no pf/smoother options)."""
     p.add_argument("sequence", metavar="SEQ", help="recording folder (bag or plain-folder form)")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--out", required=True, type=output_path, metavar="DIR", help="output folder")
     p.add_argument("--estimator", choices=estimators, default=default_estimator, help="estimator of E")
     p.add_argument("--observation", choices=OBSERVATION_MODELS, default=TrackOptions.observation,
                    help="observation model of the method")
@@ -126,6 +127,7 @@ def run(args) -> int:
                    progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,
                    topics=source_from_args(args))
     require_tracked(result, args.out)   # no tracked frame: exit status 2, never 0
+    require_tool_in_front(result, Path(args.sequence) / "handeye.yaml")
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps",
                 "estimator_report")

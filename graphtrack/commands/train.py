@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphtrack.commands.common import HelpFormatter, add_threads_argument
+from graphtrack.commands.common import HelpFormatter, add_threads_argument, output_path
 from graphtrack.errors import InputError
 
 
@@ -32,7 +32,7 @@ def add_parser(sub):
                        formatter_class=HelpFormatter,
                        description="Simulate domain-randomised training frames (both scenes) and train the "
                                    "learned shaft-edge detector; writes a weights file for --detector learned.")
-    p.add_argument("--out", required=True, metavar="FILE", help="weights file to write (.pt)")
+    p.add_argument("--out", required=True, type=output_path, metavar="FILE", help="weights file to write (.pt)")
     p.add_argument("--frames", type=int, default=2400, help="training frames to simulate")
     p.add_argument("--epochs", type=int, default=60, help="training epochs")
     p.add_argument("--seed", type=int, default=0, help="seed of the data and of the training")

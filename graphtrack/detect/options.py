@@ -38,6 +38,9 @@ class DetectionOptions:
             raise InputError(f"--alpha must be a positive number of pixels, got {self.alpha!r}")
         if not 0 <= self.beta <= 1:   # a heatmap value: outside [0, 1] every or no pixel passes
             raise InputError(f"--beta must be in [0, 1] (a heatmap threshold), got {self.beta!r}")
+        if self.weights and self.detector == "canny":
+            raise InputError(f"--weights {self.weights}: the canny detector has no weights "
+                             "(they are for --detector learned or sold2)")
         return self
 
     def detector_keywords(self) -> dict:

@@ -258,6 +258,14 @@ def write_errors_csv(path: str | Path, errors: dict) -> None:
     write_text(path, "\n".join(lines) + "\n")
 
 
+def check_truth(recording: str | Path) -> None:
+    """Read the recording's truth.csv, if any, so that a bad one is refused (InputError
+    naming the file, line and frame) before a run rather than after it."""
+    tp = truth_path(recording)
+    if tp is not None:
+        read_trajectory(tp, poses_required=True)
+
+
 def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
                            joints: dict[int, np.ndarray] | None = None) -> dict:
     """What track() adds to metrics.json beyond the label metrics.
@@ -273,7 +281,7 @@ def evaluate_against_truth(recording: str | Path, out: str | Path, robot=None,
     tp = truth_path(recording)
     if tp is None:
         return doc
-    truth = read_trajectory(tp)
+    truth = read_trajectory(tp, poses_required=True)
     tips_base = None
     if robot is not None and joints and robot.tool_tip is not None:
         fr = sorted(joints)

@@ -24,7 +24,7 @@ import numpy as np
 
 from graphtrack.detect.base import Detection, Observation
 from graphtrack.estimate.base import Estimate
-from graphtrack.io.video import StampedVideoWriter
+from graphtrack.io.video import StampedVideoWriter, open_video
 from graphtrack.robot.features import base_features
 
 GREEN = (0, 200, 0)
@@ -208,7 +208,7 @@ class OverlayWriter:
 
 def video_frame_count(path: str | Path) -> int:
     """Frames in a video, by decoding it (reliable for mp4v files OpenCV wrote)."""
-    cap = cv2.VideoCapture(str(path))
+    cap = open_video(path)
     n = 0
     try:
         while True:

@@ -267,6 +267,11 @@ def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
     return K
 
 
+#: the shortest stereo baseline accepted (mm): stereo endoscopes' are 3-6 mm; shorter is
+#: a baseline written in metres, or none
+MIN_BASELINE_MM = 0.5
+
+
 def load_calibration(path: str | Path) -> Calibration:
     """Read camera_calibration.yaml (format doc); raise InputError naming file and key."""
     path = Path(path)
@@ -294,9 +299,10 @@ def load_calibration(path: str | Path) -> Calibration:
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
             raise InputError(f"{path}: key 'R' is not a rotation matrix (right-from-left, row-major)")
         T = _matrix(doc, "T", 3, path) / 1000.0
-        if not np.linalg.norm(T) <= 1.0:
-            raise InputError(f"{path}: key 'T' is {1e3 * np.linalg.norm(T):g} mm long; a stereo baseline "
-                             "is at most 1000 mm")
+        if not MIN_BASELINE_MM <= 1e3 * np.linalg.norm(T) <= 1000.0:
+            raise InputError(f"{path}: key 'T' is {1e3 * np.linalg.norm(T):.3g} mm long; a stereo baseline "
+                             f"is {MIN_BASELINE_MM:g} to 1000 mm (the dVRK endoscope's about 5 mm), in millimetres: "
+                             "values in metres must be multiplied by 1000")
         return Calibration(left, right, R, T)
     return Calibration(left)
 

@@ -185,6 +185,7 @@ class BagSource:
         why = f"{_one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
         self.warnings.append(f"{self.path}: bag index unusable ({why}); read by scanning its "
                              "records, frames after the damage are missing")
+        self._scan_warning = len(self.warnings) - 1     # _choose_topics adds the last good frame
         self._scan_joints = joints
         self._scan_stamps = img_stamps
         return {k: (v[0], v[1]) for k, v in counts.items()}
@@ -224,6 +225,8 @@ class BagSource:
             beyond = np.flatnonzero(stamps > last)
             self.n_images = int(beyond[0]) if beyond.size else len(stamps)
             self._stamps = stamps[: self.n_images]
+            if self.n_images:
+                self.warnings[self._scan_warning] += f" (the last good frame is {self.n_images - 1})"
 
     def __len__(self) -> int:
         return int(self.n_images)

@@ -25,6 +25,7 @@ import numpy as np
 
 from graphtrack.errors import FrameError, InputError, read_text
 from graphtrack.io.frame import Frame
+from graphtrack.io.video import open_video
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 
@@ -123,7 +124,7 @@ class FolderSource:
     def _check_video_length(self) -> None:
         """InputError when video.mp4 holds more frames than joints.csv has rows (the
         container's frame count): as with frames/, frames are never re-paired."""
-        cap = cv2.VideoCapture(str(self.video))
+        cap = open_video(self.video)
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
         cap.release()
         if n > self.n_images:
@@ -146,9 +147,9 @@ class FolderSource:
                 img = cv2.imread(str(p), cv2.IMREAD_COLOR)
                 yield k, img, None if img is not None else f"{p.name} does not decode"
             return
-        cap = cv2.VideoCapture(str(self.video))
+        cap = open_video(self.video)
         if not cap.isOpened():
-            raise InputError(f"{self.video}: cannot open the video")
+            raise InputError(f"{self.video}: cannot open the video (damaged, cut short, or not a video FFmpeg decodes)")
         try:
             ended = False
             for k in range(start):

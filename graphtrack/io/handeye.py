@@ -53,8 +53,10 @@ def _vector3(doc: dict, key: str, path: Path) -> np.ndarray:
     return a
 
 
-#: plausibility bounds: the camera is within MAX_TRANSLATION_MM of the arm's base, and a
-#: Rodrigues vector's angle is at most 2 pi
+#: plausibility bounds: the camera is between MIN_TRANSLATION_MM and MAX_TRANSLATION_MM
+#: from the arm's base (its remote centre of motion, where the arm's port is: the
+#: endoscope enters through another port), and a Rodrigues vector's angle is at most 2 pi
+MIN_TRANSLATION_MM = 1.0
 MAX_TRANSLATION_MM = 5000.0
 MAX_ROTATION_RAD = 2 * np.pi
 
@@ -75,7 +77,8 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
     Raises
     ------
     InputError naming the file and the key when a key is missing, is not three
-    numbers, holds NaN/inf, puts the camera more than 5 m from the base, turns more
+    numbers, holds NaN/inf, puts the camera more than 5 m or less than 1 mm (a
+    translation in metres) from the base, turns more
     than 2 pi, or when the file holds several arms and none was named.
     """
     path = Path(path)
@@ -90,6 +93,10 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
     if not np.linalg.norm(t_mm) <= MAX_TRANSLATION_MM:
         raise InputError(f"{path}: key '{prefix}_tvec' is {np.linalg.norm(t_mm):.4g} mm from the base; "
                          f"expected at most {MAX_TRANSLATION_MM:g} mm (the file is in millimetres)")
+    if not np.linalg.norm(t_mm) >= MIN_TRANSLATION_MM:
+        raise InputError(f"{path}: key '{prefix}_tvec' puts the camera {np.linalg.norm(t_mm):.3g} mm from the "
+                         f"arm's base (remote centre of motion); expected at least {MIN_TRANSLATION_MM:g} mm "
+                         "(the file is in millimetres: values in metres must be multiplied by 1000)")
     if not np.linalg.norm(rvec) <= MAX_ROTATION_RAD:
         raise InputError(f"{path}: key '{prefix}_rvec' turns {np.linalg.norm(rvec):.4g} rad; an axis-angle "
                          "vector's angle is at most 2 pi")

@@ -8,7 +8,9 @@
   become ``null``; like every :func:`write_text`, written to a temporary file and
   renamed, so a full disk leaves the old file or none, never half of one.
 - :func:`require_tracked`: a run that tracked no frame is an error (exit status 2)
-  naming the skip reasons and the first skipped frame, never a silent exit 0.
+  naming the skip reasons and the first skipped frame, never a silent exit 0;
+  :func:`require_tool_in_front`: so is a run whose tool tip was behind the camera in
+  every frame (naming handeye.yaml).
 """
 from __future__ import annotations
 
@@ -94,6 +96,17 @@ def require_tracked(result: dict, out: str | Path) -> None:
     first = min(examples.values(), key=lambda m: _frame_of(m)) if examples else ""
     total = result.get("frames_total", n)
     raise InputError(f"no frame was tracked: {n} of {total} frames skipped ({counts}); first: {first}")
+
+
+def require_tool_in_front(result: dict, handeye: str | Path) -> None:
+    """InputError naming ``handeye`` (the recording's handeye.yaml) when frames were
+    tracked but the tool tip lies behind the camera in every one of them (metrics.json
+    ``frames_tip_in_front`` = 0): an inverted or mis-scaled calibration, never a scene."""
+    n = result.get("frames_tracked", 0)
+    if n > 0 and result.get("frames_tip_in_front") == 0:
+        raise InputError(f"{handeye}: at this hand-eye the tool tip is behind the camera in all {n} tracked "
+                         "frames, so nothing could be tracked; it must map the arm's base into the camera "
+                         "(X_camera = R(rvec) X_base + tvec, tvec in millimetres), not the camera into the base")
 
 
 def _frame_of(message: str) -> int:

@@ -235,8 +235,22 @@ def _float(s: str) -> float:
     return float(s) if s else float("nan")
 
 
-def read_trajectory(path: str | Path) -> dict:
+def _require_poses(path: Path, pose: np.ndarray, lines: list[int], frames: list[int]) -> None:
+    """InputError at the first row whose tx..qw (N, 7) are not finite or whose quaternion
+    is not of unit length within 1 %."""
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.all(np.isfinite(pose), axis=1) & (np.abs(np.linalg.norm(pose[:, 3:], axis=1) - 1.0) <= 0.01))
+    if np.any(bad):
+        k = int(np.flatnonzero(bad)[0])
+        raise InputError(f"{path}: line {lines[k]} (frame {frames[k]}): tx..qw must be finite with a unit "
+                         f"quaternion ({int(bad.sum())} such rows)")
+
+
+def read_trajectory(path: str | Path, poses_required: bool = False) -> dict:
     """Read trajectory.csv or truth.csv.
+
+    ``poses_required`` (truth.csv): every row's tx..qw must be finite with a unit
+    quaternion (within 1 %), else InputError naming the file, line and frame.
 
     Returns
     -------
@@ -257,7 +271,7 @@ def read_trajectory(path: str | Path) -> dict:
             raise InputError(f"{path}: header must start with '{','.join(COLUMNS)}', "
                              f"found {','.join(header)!r}")
         extra_names = header[len(COLUMNS):]
-        std, extra = [], []
+        std, extra, lines = [], [], []
         for line, row in enumerate(reader, start=2):
             if not row:
                 continue
@@ -268,8 +282,11 @@ def read_trajectory(path: str | Path) -> dict:
             except ValueError:
                 raise InputError(f"{path}: line {line} holds a value that is not a number") from None
             extra.append(row[len(COLUMNS):])
+            lines.append(line)
     a = np.array([r[1:] for r in std], dtype=float).reshape(-1, len(COLUMNS) - 1)
     t, q = a[:, 1:4], a[:, 4:8]
+    if poses_required:
+        _require_poses(path, a[:, 1:8], lines, [r[0] for r in std])
     R = np.full((len(a), 3, 3), np.nan)
     ok = np.all(np.isfinite(q), axis=1) & (np.linalg.norm(q, axis=1) > 0)
     if np.any(ok):
@@ -283,3 +300,4 @@ def read_trajectory(path: str | Path) -> dict:
             extras[name] = np.array(col, dtype=str)
     return {"frame": np.array([r[0] for r in std], dtype=int), "stamp": a[:, 0],
             "E": make_transform(R, t), "tip": a[:, 8:10], "ms": a[:, 10], "extras": extras}
+

@@ -9,6 +9,7 @@ so a video cut short (full disk) is an InputError, not a silent broken file.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
@@ -17,6 +18,14 @@ import numpy as np
 from graphtrack.errors import InputError
 
 FALLBACK_FPS = 30.0
+
+
+def open_video(path: str | Path) -> cv2.VideoCapture:
+    """``cv2.VideoCapture(path)`` with FFmpeg's own log lines off (a damaged file would
+    print "moov atom not found" and the like before graphtrack's one-line message);
+    OPENCV_FFMPEG_LOGLEVEL set by the user wins. Read at OpenCV's first capture."""
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")   # AV_LOG_QUIET
+    return cv2.VideoCapture(str(path))
 
 
 def frame_rate(stamps, fallback: float = FALLBACK_FPS) -> float:
@@ -83,7 +92,7 @@ class StampedVideoWriter:
         if self._writer is not None:
             self._writer.release()
             self._writer = None
-            cap = cv2.VideoCapture(str(self.path))
+            cap = open_video(self.path)
             n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
             cap.release()
             if n != self.frames_written:

@@ -23,7 +23,7 @@ from tqdm import tqdm
 from graphtrack.allocator import keep_freed_memory
 from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
-from graphtrack.eval.metrics import evaluate_against_truth, tip_metrics
+from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_metrics
 from graphtrack.eval.overlay import OverlayWriter
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
@@ -99,8 +99,12 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     """
     keep_freed_memory()
     rec, ctx = _open(path, options, quiet, topics)
+    check_truth(path)   # for evaluation only (never given to the estimator): refused before the run
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
+    if pipe.needs_images and not ctx.robot.shaft_features:
+        warn(f"warning: {rec.path / 'robot.json'} has no shaft_features: tracking from the markers alone, "
+             "without the global start-up search", quiet)
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
     overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels,
                             labels_right=rec.labels_right) if video else None
@@ -149,6 +153,9 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         for a, b in stretches:
             warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
                   "motion model's prediction (std_* columns grow)", quiet)
+    if result.get("frames_tip_in_front") and not result.get("frames_tip_in_image"):
+        warn(f"warning: the tool tip projects outside the image in every tracked frame; check "
+             f"{rec.path / 'handeye.yaml'} (and robot.json's tool_tip)", quiet)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
 
@@ -164,8 +171,12 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
     if rec.stereo:
         result.update(stereo=bool(ctx.stereo), frames_left_only=int(left_only),
                       right_skipped_reasons={k: int(v) for k, v in rec.right_skips.items()})
+    tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
+    if rec.robot.tool_tip is not None:   # where the estimates put the tip (require_tool_in_front)
+        front = np.all(np.isfinite(tips), axis=1)
+        result.update(frames_tip_in_front=int(front.sum()), frames_tip_in_image=int(
+            np.sum((tips[front] >= 0).all(1) & (tips[front, 0] < ctx.camera.width) & (tips[front, 1] < ctx.camera.height))))
     if rec.labels is not None:
-        tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
         result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))
     if rec.labels_right and rec.calibration.stereo:
         tips_3d = np.array([tip_point(ctx, r[2], r[4]) for r in run.rows]).reshape(-1, 3)

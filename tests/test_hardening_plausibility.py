@@ -1,0 +1,154 @@
+"""Inputs that parse but cannot be right, each through the CLI (``graphtrack.cli.main``)
+with the catalogue's rules (test_hardening_catalogue): a hand-eye in metres or inverted,
+a stereo baseline in metres, a truth.csv with unusable poses, options that do not go
+together, an empty output path, a run or study in which nothing was tracked, a damaged
+video; and a robot without a shaft, which tracks from its markers."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from test_hardening_catalogue import (REPO, assert_outputs_sane, base, check_exit2, copy, edit_joints,  # noqa: F401
+                                      edit_json, edit_yaml, error_line, run_cli, set_column, track)
+from test_hardening_extra import stereo  # noqa: F401
+
+
+def scale_tvec(f: float):
+    def fn(doc):
+        doc["PSM1_tvec"] = [f * v for v in doc["PSM1_tvec"]]
+    return fn
+
+
+def invert_handeye(doc):
+    """base-from-camera written where camera-from-base belongs."""
+    R = cv2.Rodrigues(np.asarray(doc["PSM1_rvec"], float))[0]
+    t = np.asarray(doc["PSM1_tvec"], float)
+    doc["PSM1_rvec"] = cv2.Rodrigues(R.T)[0].ravel().tolist()
+    doc["PSM1_tvec"] = (-R.T @ t).tolist()
+
+
+def truth_field(line: int, col: slice, values: list[str]):
+    def mutate(rec):
+        lines = (rec / "truth.csv").read_text().splitlines()
+        row = lines[line - 1].split(",")
+        row[col] = values
+        lines[line - 1] = ",".join(row)
+        (rec / "truth.csv").write_text("\n".join(lines) + "\n")
+    return mutate
+
+
+KIN = ("--estimator", "kinematics")
+EXIT2 = [
+    ("handeye_in_metres", "folder", lambda r: edit_yaml(r / "handeye.yaml", scale_tvec(1e-3)), KIN,
+     r"handeye\.yaml: key 'PSM1_tvec' puts the camera 0\.\d+ mm from the arm's base.*multiplied by 1000"),
+    ("handeye_zero", "folder",
+     lambda r: edit_yaml(r / "handeye.yaml", lambda d: d.update(PSM1_tvec=[0, 0, 0], PSM1_rvec=[0, 0, 0])), KIN,
+     r"handeye\.yaml: key 'PSM1_tvec' puts the camera 0 mm"),
+    ("handeye_inverted", "folder", lambda r: edit_yaml(r / "handeye.yaml", invert_handeye), KIN,
+     r"handeye\.yaml: at this hand-eye the tool tip is behind the camera in all 12 tracked frames"),
+    ("truth_nan_tx", "folder", truth_field(4, slice(2, 3), ["nan"]), KIN,
+     r"truth\.csv: line 4 \(frame 2\): tx\.\.qw must be finite with a unit quaternion"),
+    ("truth_zero_quaternion", "folder", truth_field(6, slice(5, 9), ["0"] * 4), KIN,
+     r"truth\.csv: line 6 \(frame 4\): .*unit quaternion"),
+    ("canny_with_weights", "folder", lambda r: (r / "w.pt").write_bytes(b"x"),
+     ("--detector", "canny", "--weights", "w.pt"), r"--weights w\.pt: the canny detector has no weights"),
+]
+
+
+@pytest.mark.parametrize("case", EXIT2, ids=[c[0] for c in EXIT2])
+def test_plausibility_exit2(case, base, tmp_path, capsys):  # noqa: F811
+    check_exit2(case, base, tmp_path, capsys)
+
+
+def test_bad_truth_is_refused_before_the_run(base, tmp_path, capsys):  # noqa: F811
+    rec = copy(base, "folder", tmp_path)
+    truth_field(3, slice(2, 3), ["nan"])(rec)
+    code, err = track(rec, tmp_path / "out", capsys, *KIN)
+    assert code == 2 and "truth.csv" in error_line(err)
+    assert not (tmp_path / "out" / "trajectory.csv").exists()
+
+
+@pytest.mark.parametrize("T", [[0.0, 0.0, 0.0], [-0.005, 0.0, 0.0]], ids=["zero", "metres"])
+def test_stereo_baseline_in_metres_or_none(T, stereo, tmp_path, capsys):  # noqa: F811
+    rec = copy(stereo.parent, stereo.name, tmp_path)
+    edit_yaml(rec / "camera_calibration.yaml", lambda d: d.update(T=T))
+    code, err = track(rec, tmp_path / "out", capsys, *KIN)
+    assert code == 2, err
+    assert re.search(r"camera_calibration\.yaml: key 'T' is 0(\.005)? mm long; .*0\.5 to 1000 mm",
+                     error_line(err))
+
+
+@pytest.mark.parametrize("command", [["track"], ["detect"], ["simulate"], ["compare"]])
+def test_empty_output_path(command, base, tmp_path, capsys):  # noqa: F811
+    args = [*command, ""] if command == ["simulate"] else [*command, base / "folder", "--out", " "]
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        with pytest.raises(SystemExit) as e:
+            run_cli(args, capsys)
+    finally:
+        os.chdir(cwd)
+    assert e.value.code == 2
+    assert "an empty path would mean the current folder" in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())
+
+
+def test_detect_with_no_readable_frame(base, tmp_path, capsys):  # noqa: F811
+    rec = copy(base, "folder", tmp_path)
+    for p in (rec / "frames").iterdir():
+        p.write_bytes(b"not an image")
+    code, err = run_cli(["detect", rec, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2
+    assert re.search(r"no frame could be detected on: 12 of 12 frames skipped", error_line(err))
+
+
+def test_compare_with_a_failed_cell(base, tmp_path, capsys):  # noqa: F811
+    """A recording whose every frame is skipped fails its cell; the others are tabled, and
+    the study exits 2 naming the count."""
+    bad = copy(base, "folder", tmp_path)
+    edit_joints(bad, set_column(4, "nan"))
+    code, err = run_cli(["compare", base / "folder", bad, "--out", tmp_path / "study", "--estimators",
+                         "kinematics", "--observations", "canny", "--workers", "1", "--quiet"], capsys)
+    assert code == 2, err
+    assert re.search(r"cell rec/.* failed: no frame was tracked", err)
+    assert re.search(r"1 cell\(s\) failed", error_line(err))
+    assert "folder" in (tmp_path / "study" / "table.md").read_text()
+
+
+def test_damaged_video_is_one_line(base, tmp_path):  # noqa: F811
+    """FFmpeg's own complaints ("moov atom not found") stay off stderr: one line, exit 2."""
+    rec = copy(base, "folder", tmp_path)
+    for p in (rec / "frames").iterdir():
+        p.unlink()
+    (rec / "frames").rmdir()
+    (rec / "video.mp4").write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_FFMPEG_LOGLEVEL"}
+    p = subprocess.run([sys.executable, "-m", "graphtrack.cli", "track", str(rec), "--out", str(tmp_path / "out"),
+                        "--quiet"], capture_output=True, text=True, env=dict(env, PYTHONPATH=str(REPO)), timeout=120)
+    assert p.returncode == 2
+    assert p.stderr.strip().splitlines() == [error_line(p.stderr)]
+    assert "video.mp4: cannot open the video" in p.stderr
+
+
+@pytest.mark.parametrize("command", [["track", "--estimator", "smoother"], ["refine"]])
+def test_robot_without_shaft_tracks_from_markers(command, base, tmp_path, capsys):  # noqa: F811
+    """robot.json without shaft_features: the smoother and the batch run on the markers
+    alone (a warning says so), every pose finite."""
+    rec = copy(base, "folder", tmp_path)
+    edit_json(rec / "robot.json", lambda d: d.pop("shaft_features"))
+    out = tmp_path / "out"
+    code, err = run_cli([command[0], rec, "--out", out, *command[1:], "--detector", "canny"], capsys)
+    assert code == 0, err
+    assert "has no shaft_features: tracking from the markers alone" in err
+    doc = json.loads((out / "metrics.json").read_text())
+    assert doc["frames_tracked"] == 12 and doc["frames_tip_in_front"] == 12
+    assert all(math.isfinite(v) for v in (doc["tip_error_px"]["mean"], doc["translation_error_mm"]["mean"]))
+    assert_outputs_sane(out)
