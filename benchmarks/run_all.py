@@ -186,6 +186,13 @@ def plot_scaling(results: dict) -> str | None:
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if any(a in ("-h", "--help") for a in argv):
+        print(__doc__.strip() + f"\n\nsections: {' '.join(SECTIONS)}")
+        return 0
+    unknown = [a for a in argv if not (HERE / f"bench_{a}.py").is_file()]
+    if unknown:   # nothing run, nothing rewritten
+        print(f"run_all.py: no benchmark {', '.join(unknown)} (sections: {' '.join(SECTIONS)})", file=sys.stderr)
+        return 2
     wanted = argv or list(SECTIONS)
     store = HERE / "results.json"
     results = json.loads(store.read_text()) if store.exists() else {}
@@ -195,11 +202,7 @@ def main(argv=None) -> int:
     results["_note"] = os.environ.get("GRAPHTRACK_BENCH_NOTE", "")  # a caveat about this run, if any
     sys.path.insert(0, str(HERE))
     for name in wanted:
-        try:
-            module = importlib.import_module(f"bench_{name}")
-        except ModuleNotFoundError:
-            print(f"no benchmark bench_{name}.py, skipped")
-            continue
+        module = importlib.import_module(f"bench_{name}")
         t = time.perf_counter()
         print(f"== {name}", flush=True)
         fresh: dict = {}
