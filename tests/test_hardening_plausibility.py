@@ -15,6 +15,7 @@ import sys
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from test_hardening_catalogue import (REPO, assert_outputs_sane, base, check_exit2, copy, edit_joints,  # noqa: F401
                                       edit_json, edit_yaml, error_line, run_cli, set_column, track)
@@ -68,12 +69,57 @@ def test_plausibility_exit2(case, base, tmp_path, capsys):  # noqa: F811
     check_exit2(case, base, tmp_path, capsys)
 
 
+def test_truth_rows_of_unknown_pose_are_not_scored(base, tmp_path, capsys):  # noqa: F811
+    """A truth.csv row with all of tx..qw empty is a pose not known: the run goes on, and
+    that frame has no pose error while the others do."""
+    rec = copy(base, "folder", tmp_path)
+    truth_field(5, slice(2, 9), [""] * 7)(rec)
+    out = tmp_path / "out"
+    code, err = track(rec, out, capsys, *KIN)
+    assert code == 0, err
+    rows = (out / "truth_errors.csv").read_text().splitlines()[1:]
+    trans = {int(r.split(",")[0]): float(r.split(",")[1]) for r in rows}
+    assert math.isnan(trans[3]) and all(math.isfinite(v) for k, v in trans.items() if k != 3)
+
+
 def test_bad_truth_is_refused_before_the_run(base, tmp_path, capsys):  # noqa: F811
     rec = copy(base, "folder", tmp_path)
     truth_field(3, slice(2, 3), ["nan"])(rec)
     code, err = track(rec, tmp_path / "out", capsys, *KIN)
     assert code == 2 and "truth.csv" in error_line(err)
     assert not (tmp_path / "out" / "trajectory.csv").exists()
+
+
+def test_tip_outside_the_image_in_every_frame_is_warned(base, tmp_path, capsys):  # noqa: F811
+    """The camera turned 40 deg about its y axis: the tip stays in front of it and, by
+    OpenCV's projection of the robot's tip (oracle), right of the image in every frame;
+    the run warns and counts 12 frames in front, none inside."""
+    from graphtrack.robot.description import load_robot_json
+    from graphtrack.robot.features import base_features
+
+    rec = copy(base, "folder", tmp_path)
+    Ry = cv2.Rodrigues(np.array([0.0, np.radians(40.0), 0.0]))[0]
+
+    def turn(doc):
+        R = Ry @ cv2.Rodrigues(np.asarray(doc["PSM1_rvec"], float))[0]
+        doc["PSM1_rvec"] = cv2.Rodrigues(R)[0].ravel().tolist()
+        doc["PSM1_tvec"] = (Ry @ np.asarray(doc["PSM1_tvec"], float)).tolist()
+    edit_yaml(rec / "handeye.yaml", turn)
+    he = yaml.safe_load((rec / "handeye.yaml").read_text())
+    cal = yaml.safe_load((rec / "camera_calibration.yaml").read_text())
+    K, D = (np.asarray(cal[k]["data"] if isinstance(cal[k], dict) else cal[k], float) for k in ("K1", "D1"))
+    q = np.loadtxt(rec / "joints.csv", delimiter=",", skiprows=1)[:, 2:]
+    tips = base_features(load_robot_json(rec / "robot.json"), q).tip
+    rvec, tvec = np.asarray(he["PSM1_rvec"], float), np.asarray(he["PSM1_tvec"], float) / 1000.0
+    assert np.all((cv2.Rodrigues(rvec)[0] @ tips.T)[2] + tvec[2] > 0)
+    uv = cv2.projectPoints(tips, rvec, tvec, K.reshape(3, 3), D)[0].reshape(-1, 2)
+    assert np.all(uv[:, 0] > cal["ImageSize"][1])
+    out = tmp_path / "out"
+    code, err = track(rec, out, capsys, *KIN, quiet=False)
+    assert code == 0, err
+    assert "the tool tip projects outside the image in every tracked frame" in err
+    doc = json.loads((out / "metrics.json").read_text())
+    assert (doc["frames_tip_in_front"], doc["frames_tip_in_image"]) == (12, 0)
 
 
 @pytest.mark.parametrize("T", [[0.0, 0.0, 0.0], [-0.005, 0.0, 0.0]], ids=["zero", "metres"])
@@ -111,15 +157,19 @@ def test_detect_with_no_readable_frame(base, tmp_path, capsys):  # noqa: F811
 
 
 def test_compare_with_a_failed_cell(base, tmp_path, capsys):  # noqa: F811
-    """A recording whose every frame is skipped fails its cell; the others are tabled, and
-    the study exits 2 naming the count."""
+    """A recording whose every frame is skipped, and one whose tool is behind the camera
+    throughout, fail their cells; the other is tabled, and the study exits 2 naming the count."""
     bad = copy(base, "folder", tmp_path)
     edit_joints(bad, set_column(4, "nan"))
-    code, err = run_cli(["compare", base / "folder", bad, "--out", tmp_path / "study", "--estimators",
+    inverted = tmp_path / "inverted"
+    copy(base, "folder", tmp_path / "x").rename(inverted)
+    edit_yaml(inverted / "handeye.yaml", invert_handeye)
+    code, err = run_cli(["compare", base / "folder", bad, inverted, "--out", tmp_path / "study", "--estimators",
                          "kinematics", "--observations", "canny", "--workers", "1", "--quiet"], capsys)
     assert code == 2, err
     assert re.search(r"cell rec/.* failed: no frame was tracked", err)
-    assert re.search(r"1 cell\(s\) failed", error_line(err))
+    assert re.search(r"cell inverted/.* failed: .*handeye\.yaml: .*behind the camera", err)
+    assert re.search(r"2 cell\(s\) failed", error_line(err))
     assert "folder" in (tmp_path / "study" / "table.md").read_text()
 
 
@@ -152,3 +202,19 @@ def test_robot_without_shaft_tracks_from_markers(command, base, tmp_path, capsys
     assert doc["frames_tracked"] == 12 and doc["frames_tip_in_front"] == 12
     assert all(math.isfinite(v) for v in (doc["tip_error_px"]["mean"], doc["translation_error_mm"]["mean"]))
     assert_outputs_sane(out)
+
+
+def test_compare_with_a_crashed_cell_is_an_internal_error(base, tmp_path, capsys, monkeypatch):  # noqa: F811
+    """A cell that fails by a bug (not bad input) makes the study exit 1, as `track` would,
+    and its error.json says so."""
+    import graphtrack.study.execute as execute
+
+    def crash(*a, **k):
+        raise ZeroDivisionError("division by zero")
+    monkeypatch.setattr(execute, "track", crash)
+    code, err = run_cli(["compare", base / "folder", "--out", tmp_path / "study", "--estimators", "kinematics",
+                         "--observations", "canny", "--workers", "1", "--quiet"], capsys)
+    assert code == 1, err
+    assert "internal error in 1 cell(s)" in err and "ZeroDivisionError" in err
+    (doc,) = [json.loads(p.read_text()) for p in (tmp_path / "study").rglob("error.json")]
+    assert doc["internal"] is True and "ZeroDivisionError" in doc["traceback"]

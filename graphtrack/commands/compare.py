@@ -54,6 +54,10 @@ def run(args) -> int:
             print(f"note: {n}")
     for rec, key, msg in data["errors"]:
         print(f"graphtrack: cell {rec}/{key} failed: {msg}", file=sys.stderr)
+    if data["internal_errors"]:   # a bug (its traceback is in the cell's error.json): exit status 1
+        print(f"graphtrack: internal error in {data['internal_errors']} cell(s) (a bug: please report it; "
+              "the traceback is in the cell's error.json)", file=sys.stderr)
+        return 1
     if data["errors"]:   # the table holds the other cells; a re-run recomputes only the failed ones
         raise InputError(f"{len(data['errors'])} cell(s) failed (listed above and in {args.out}/table.md)")
     return 0

@@ -76,8 +76,8 @@ def run(args) -> int:
     print("2-D tool-tip error, % of the image diagonal: mean (std)")
     print(data["table_text"])
     print()
-    for rec, key, msg in data["errors"]:
-        print(f"cell {rec}/{key} failed: {msg}")
+    for rec, key, msg in data["errors"]:   # the demo makes its own input: a failure is a bug (exit 1 below)
+        print(f"graphtrack: cell {rec}/{key} failed: {msg}", file=sys.stderr)
     plots = sorted(out.glob("accumulated_error_*.png"))
     print(f"table:  {out / 'table.md'}")
     for p in plots:
@@ -86,7 +86,7 @@ def run(args) -> int:
         print(f"video:  {data['video']}")
     print(f"runs:   {out / 'runs'}/<recording>/<estimator>-<observation>/ "
           f"(trajectory.csv, trajectory.tum, metrics.json)")
-    return 0
+    return 1 if data["errors"] else 0
 
 
 def add_parser(sub):

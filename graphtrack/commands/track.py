@@ -11,7 +11,8 @@ import json
 import math
 from pathlib import Path
 
-from graphtrack.commands.common import HelpFormatter, add_source_arguments, add_threads_argument, output_path, source_from_args
+from graphtrack.commands.common import (HelpFormatter, add_source_arguments, add_threads_argument, output_path,
+                                        source_from_args)
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions

@@ -140,7 +140,7 @@ class FixedLagSmootherEstimator:
         self.last_cov = None          # marginal covariance of the last x_t (the marker gate)
         self.gate_follows = bool(marker_gate_follows_covariance)   # _gated_options
         self.motion_cov = np.diag(np.square([motion_sigma_b] * 3 + [motion_sigma_w] * 3))
-        if search and ctx.robot.shaft_features:   # the search scores the shaft's edges (no shaft: markers only, no search)
+        if search and ctx.robot.shaft_features:   # the search scores shaft edges: none without a shaft
             self.reinit = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, self.fopts.gate_scale,
                                      markers, motion_cov=self.motion_cov, window=search_window)
             self.start_up_wait = 0    # the search associates markers per hypothesis

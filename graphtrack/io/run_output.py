@@ -101,12 +101,14 @@ def require_tracked(result: dict, out: str | Path) -> None:
 def require_tool_in_front(result: dict, handeye: str | Path) -> None:
     """InputError naming ``handeye`` (the recording's handeye.yaml) when frames were
     tracked but the tool tip lies behind the camera in every one of them (metrics.json
-    ``frames_tip_in_front`` = 0): an inverted or mis-scaled calibration, never a scene."""
+    ``frames_tip_in_front`` = 0): nothing of the tool was in view to track. Usually an
+    inverted or mis-signed calibration; else a tool retracted behind the camera throughout."""
     n = result.get("frames_tracked", 0)
     if n > 0 and result.get("frames_tip_in_front") == 0:
         raise InputError(f"{handeye}: at this hand-eye the tool tip is behind the camera in all {n} tracked "
-                         "frames, so nothing could be tracked; it must map the arm's base into the camera "
-                         "(X_camera = R(rvec) X_base + tvec, tvec in millimetres), not the camera into the base")
+                         "frames, so nothing in view could be tracked; the file must map the arm's base into "
+                         "the camera (X_camera = R(rvec) X_base + tvec, tvec in millimetres), not the camera "
+                         "into the base (or the tool stayed retracted behind the camera throughout)")
 
 
 def _frame_of(message: str) -> int:

@@ -236,10 +236,13 @@ def _float(s: str) -> float:
 
 
 def _require_poses(path: Path, pose: np.ndarray, lines: list[int], frames: list[int]) -> None:
-    """InputError at the first row whose tx..qw (N, 7) are not finite or whose quaternion
-    is not of unit length within 1 %."""
+    """InputError at the first row whose tx..qw (N, 7) are partly non-finite or whose
+    quaternion is not of unit length within 1 %; a row with all seven empty or NaN is an
+    unknown pose (not scored)."""
+    unknown = np.all(np.isnan(pose), axis=1)
     with np.errstate(invalid="ignore"):
-        bad = ~(np.all(np.isfinite(pose), axis=1) & (np.abs(np.linalg.norm(pose[:, 3:], axis=1) - 1.0) <= 0.01))
+        ok = np.all(np.isfinite(pose), axis=1) & (np.abs(np.linalg.norm(pose[:, 3:], axis=1) - 1.0) <= 0.01)
+    bad = ~(ok | unknown)
     if np.any(bad):
         k = int(np.flatnonzero(bad)[0])
         raise InputError(f"{path}: line {lines[k]} (frame {frames[k]}): tx..qw must be finite with a unit "
@@ -250,7 +253,8 @@ def read_trajectory(path: str | Path, poses_required: bool = False) -> dict:
     """Read trajectory.csv or truth.csv.
 
     ``poses_required`` (truth.csv): every row's tx..qw must be finite with a unit
-    quaternion (within 1 %), else InputError naming the file, line and frame.
+    quaternion (within 1 %), or all empty (an unknown pose), else InputError naming
+    the file, line and frame.
 
     Returns
     -------
@@ -300,4 +304,3 @@ def read_trajectory(path: str | Path, poses_required: bool = False) -> dict:
             extras[name] = np.array(col, dtype=str)
     return {"frame": np.array([r[0] for r in std], dtype=int), "stamp": a[:, 0],
             "E": make_transform(R, t), "tip": a[:, 8:10], "ms": a[:, 10], "extras": extras}
-

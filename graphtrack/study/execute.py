@@ -63,16 +63,21 @@ def _finish(cell: Cell, result: dict, seconds: float) -> dict:
     return {"key": cell.key, "recording": cell.recording, "ok": True, "seconds": seconds}
 
 
-def _fail(cell: Cell, e: BaseException) -> dict:
-    msg = f"{type(e).__name__}: {e}" if not isinstance(e, InputError) else str(e)
+def _error(e: BaseException) -> dict:
+    """error.json's content for a cell that raised ``e``: ``internal`` unless it is bad input."""
+    internal = not isinstance(e, InputError)
+    return {"error": f"{type(e).__name__}: {e}" if internal else str(e), "internal": internal,
+            "traceback": traceback.format_exc()}
+
+
+def _fail(cell: Cell, err: dict) -> dict:
     out = Path(cell.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "error.json").write_text(json.dumps({"error": msg, "traceback": traceback.format_exc()},
-                                                   indent=2))
+        (out / "error.json").write_text(json.dumps(err, indent=2))
     except OSError:
         pass
-    return {"key": cell.key, "recording": cell.recording, "ok": False, "error": msg}
+    return {"key": cell.key, "recording": cell.recording, "ok": False, "error": err["error"]}
 
 
 def run_cell(cell: Cell) -> dict:
@@ -83,12 +88,12 @@ def run_cell(cell: Cell) -> dict:
     try:
         result = _track_into(cell, out)
     except Exception as e:  # noqa: BLE001 - a failing cell is reported, the study goes on
-        return _fail(cell, e)
+        return _fail(cell, _error(e))
     return _finish(cell, result, time.perf_counter() - t)
 
 
-def run_cell_portable(cell: Cell) -> tuple[dict, dict[str, bytes] | None, str | None]:
-    """Run one cell in a scratch folder and return (result, {file: bytes}, error).
+def run_cell_portable(cell: Cell) -> tuple[dict, dict[str, bytes] | None, dict | None]:
+    """Run one cell in a scratch folder and return (result, {file: bytes}, error.json's content).
 
     For Ray workers that may not share the study folder's file system: the
     driver writes the files into the cell folder (the recording must still be
@@ -102,20 +107,17 @@ def run_cell_portable(cell: Cell) -> tuple[dict, dict[str, bytes] | None, str | 
         result["_seconds"] = time.perf_counter() - t
         return _json_safe(result), files, None
     except Exception as e:  # noqa: BLE001
-        msg = f"{type(e).__name__}: {e}" if not isinstance(e, InputError) else str(e)
-        return {}, None, msg + "\n" + traceback.format_exc()
+        return {}, None, _error(e)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _store_portable(cell: Cell, answer) -> dict:
     result, files, err = answer
+    if err is not None:
+        return _fail(cell, err)
     out = Path(cell.out)
     out.mkdir(parents=True, exist_ok=True)
-    if err is not None:
-        msg, _, tb = err.partition("\n")
-        (out / "error.json").write_text(json.dumps({"error": msg, "traceback": tb}, indent=2))
-        return {"key": cell.key, "recording": cell.recording, "ok": False, "error": msg}
     for name, data in files.items():
         (out / name).write_bytes(data)
     return _finish(cell, result, float(result.pop("_seconds", float("nan"))))
@@ -142,7 +144,7 @@ def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[
                 try:
                     answers.append(fut.result())
                 except Exception as e:  # noqa: BLE001 - e.g. a worker killed by the OS
-                    answers.append(_fail(c, e))
+                    answers.append(_fail(c, _error(e)))
                 bar.update(1)
     return answers
 
@@ -182,7 +184,7 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
                     try:
                         answers.append(_store_portable(c, ray.get(ref)))
                     except Exception as e:  # noqa: BLE001 - worker crash, lost node
-                        answers.append(_fail(c, e))
+                        answers.append(_fail(c, _error(e)))
                     bar.update(1)
     finally:
         if started:

@@ -28,17 +28,18 @@ def is_done(cell: Cell) -> bool:
 
 
 def cell_status(cell: Cell) -> dict:
-    """{'state': 'done'|'error'|'missing', 'result': ..., 'error': ...} from the cell folder."""
+    """{'state': 'done'|'error'|'missing', 'result': ..., 'error': ..., 'internal': a bug, not
+    bad input} from the cell folder."""
     out = Path(cell.out)
     if is_done(cell):
         doc = json.loads((out / "done.json").read_text())
         return {"state": "done", "result": doc.get("result", {})}
     if (out / "error.json").is_file():
         try:
-            err = json.loads((out / "error.json").read_text()).get("error", "failed")
+            doc = json.loads((out / "error.json").read_text())
         except (OSError, json.JSONDecodeError):
-            err = "failed"
-        return {"state": "error", "error": err}
+            doc = {}
+        return {"state": "error", "error": doc.get("error", "failed"), "internal": bool(doc.get("internal"))}
     return {"state": "missing"}
 
 
@@ -95,12 +96,13 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
     groups: dict = {}
     for c, st in status:
         groups.setdefault((c.row, c.recording), []).append((c, st))
-    errors = []
+    errors, internal = [], 0
     acc, run, spread = {}, {}, {}
     for (row, rec), runs in groups.items():
         for c, st in runs:
             if st["state"] == "error":
                 errors.append((rec, c.key, st["error"]))
+                internal += st["internal"]
         states = {st["state"] for _, st in runs}
         if states != {"done"}:
             acc[row, rec] = run[row, rec] = "error" if "error" in states else "missing"
@@ -159,7 +161,7 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
             w.writerow([c.recording, c.row[0], c.row[1], c.options.get("seed", ""), st["state"]]
                        + [_fmt(_get(r, *k.split(".")), 4) for k in cols] + [st.get("error", "")])
     return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "spread": spread,
-            "errors": errors, "notes": notes}
+            "errors": errors, "internal_errors": internal, "notes": notes}
 
 
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:

@@ -174,8 +174,9 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
     tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
     if rec.robot.tool_tip is not None:   # where the estimates put the tip (require_tool_in_front)
         front = np.all(np.isfinite(tips), axis=1)
-        result.update(frames_tip_in_front=int(front.sum()), frames_tip_in_image=int(
-            np.sum((tips[front] >= 0).all(1) & (tips[front, 0] < ctx.camera.width) & (tips[front, 1] < ctx.camera.height))))
+        u, v = tips[front].T
+        inside = (u >= 0) & (u < ctx.camera.width) & (v >= 0) & (v < ctx.camera.height)
+        result.update(frames_tip_in_front=int(front.sum()), frames_tip_in_image=int(inside.sum()))
     if rec.labels is not None:
         result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))
     if rec.labels_right and rec.calibration.stereo:
