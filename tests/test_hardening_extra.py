@@ -116,7 +116,7 @@ EXIT2 = [
     ("lag_nan", "folder", keep, ("--lag", "nan"), r"--lag must be a finite number"),
     ("beta_above_1", "folder", keep, ("--beta", "5"), r"--beta must be in \[0, 1\]"),
     ("alpha_inf", "folder", keep, ("--alpha", "inf"), r"--alpha must be a positive number"),
-    ("particles_0", "folder", keep, ("--estimator", "pf", "--particles", "0"), r"--particles must be positive"),
+    ("particles_0", "folder", keep, ("--estimator", "pf", "--particles", "0"), r"--particles must be between 1 and 100000, got 0"),
     ("tip_feature_unknown", "folder", keep, ("--tip-feature", "nope"), r"--tip-feature: .*no point feature 'nope'"),
 ]
 

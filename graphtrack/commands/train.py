@@ -18,10 +18,9 @@ one core, i.e. several hours for the full schedule.
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
-
-import numpy as np
 
 from graphtrack.commands.common import HelpFormatter, add_threads_argument, output_path
 from graphtrack.errors import InputError
@@ -55,48 +54,69 @@ def command(args) -> str:
     return " ".join(parts)
 
 
-def run(args) -> int:
+def _check_writable(path: Path, what: str) -> None:
+    """InputError before any work when ``path`` cannot be written: a folder, a missing
+    or read-only parent folder, a read-only file."""
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder; {what} names a file")
+    parent = path.parent
+    if not parent.is_dir():
+        raise InputError(f"{parent}: folder not found ({what})")
+    if not os.access(parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise InputError(f"{path}: not writable ({what})")
+
+
+def _check_arguments(args) -> None:
     if args.frames <= 0:
         raise InputError("--frames must be positive")
-    if args.epochs < 0:
-        raise InputError("--epochs must be >= 0")
+    if args.epochs < 1:
+        raise InputError("--epochs must be at least 1 (0 would write untrained weights)")
     if args.batch <= 0:
         raise InputError("--batch must be positive")
     if not args.lr > 0:
         raise InputError("--lr must be positive")
+    if args.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer, got {args.seed}")
     if args.init is not None and not Path(args.init).is_file():
         raise InputError(f"{args.init}: weights file not found")
+    _check_writable(Path(args.out), "--out")
+    if args.data and not Path(args.data).is_file():
+        _check_writable(Path(args.data), "--data")
+
+
+def run(args) -> int:
+    _check_arguments(args)
     # lazy: training loads torch (seconds), and the CLI imports every command module to build its parser
     import torch
 
-    from graphtrack.training.data import generate
+    from graphtrack.training.data import generate, load_cache, save_cache
     from graphtrack.training.fit import jpeg_roundtrip, save, train
 
     if args.device == "cuda":
         if not torch.cuda.is_available():
             raise InputError("--device cuda: no CUDA device available")
     out = Path(args.out)
-    if out.parent and not out.parent.exists():
-        raise InputError(f"{out.parent}: folder not found")
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     t0 = time.perf_counter()
     cache = Path(args.data) if args.data else None
     if cache is not None and cache.is_file():
-        with np.load(cache) as z:
-            images, segments = z["images"], z["segments"]
+        images, segments = load_cache(cache)
         info = {"frames": len(images), "cached": str(cache)}
     else:
         images, segments, info = generate(args.frames, args.seed,
                                           progress=lambda k, n, s: log(f"simulated {k}/{n} frames ({s:.0f} s)"))
         if cache is not None:
-            np.savez(cache, images=images, segments=segments)
+            save_cache(cache, images, segments)
     images = jpeg_roundtrip(images)
     net, stats = train(images, segments, epochs=args.epochs, seed=args.seed, device=args.device,
                        batch=args.batch, lr=args.lr, log=log, init=args.init)
     meta = {"frames": int(len(images)), "seed": int(args.seed), **{k: v for k, v in stats.items()},
             "data": json.dumps(info), "total_seconds": round(time.perf_counter() - t0, 1),
             "command": command(args)}
-    save(net, out, meta)
+    try:
+        save(net, out, meta)
+    except OSError as e:
+        raise InputError(f"{out}: cannot write the weights ({e.strerror or e})") from None
     log(json.dumps(meta))
     log(f"wrote {out}")
     return 0

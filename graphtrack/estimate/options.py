@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from graphtrack.errors import InputError
 
 PARTICLES = 1000      #: particle filter: particles
+MAX_PARTICLES = 100_000  #: particle filter: the most particles accepted (about 0.2 s a frame, a few hundred MB)
 LAG_S = 1.0           #: fixed-lag smoother: lag (s)
 SMOOTHER = "isam2"    #: fixed-lag smoother: gtsam IncrementalFixedLagSmoother ("isam2") or Batch ("batch")
 SMOOTHER_KINDS = ("isam2", "batch")
@@ -45,8 +46,10 @@ class EstimatorOptions:
 
     def check(self) -> EstimatorOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
-        if self.particles <= 0:
-            raise InputError("--particles must be positive")
+        if self.seed < 0:
+            raise InputError(f"--seed must be a non-negative integer, got {self.seed}")
+        if not 0 < self.particles <= MAX_PARTICLES:
+            raise InputError(f"--particles must be between 1 and {MAX_PARTICLES}, got {self.particles}")
         if self.lag <= 0:
             raise InputError("--lag must be positive")
         if self.smoother not in SMOOTHER_KINDS:

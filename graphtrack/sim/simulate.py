@@ -266,6 +266,8 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
         raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
+    if seed < 0:
+        raise InputError(f"--seed must be a non-negative integer, got {seed}")
     sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
     out = Path(out_dir)
     _prepare_out(out)

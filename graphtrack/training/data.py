@@ -29,6 +29,7 @@ import time
 import cv2
 import numpy as np
 
+from graphtrack.errors import InputError
 from graphtrack.sim.scene import SCENES
 from graphtrack.sim.simulate import Simulation
 from graphtrack.training.labels import shaft_edge_segments, to_reduced
@@ -99,3 +100,37 @@ def generate(frames: int, seed: int = 0, per_recording: int = 24, render_size=(2
     info = {"frames": frames, "recordings": n_rec, "per_recording": per, "render_size": list(render_size),
             "scale": scale, "seconds": round(time.perf_counter() - t0, 1)}
     return images, segs, info
+
+
+def save_cache(path, images: np.ndarray, segments: np.ndarray) -> None:
+    """Write generated frames to the ``.npz`` cache ``path`` (keys ``images``, ``segments``)."""
+    try:
+        with open(path, "wb") as f:
+            np.savez(f, images=images, segments=segments)
+    except OSError as e:
+        raise InputError(f"{path}: cannot write the --data cache ({e.strerror or e})") from None
+
+
+def load_cache(path) -> tuple[np.ndarray, np.ndarray]:
+    """(images, segments) of a cache written by :func:`save_cache`; InputError naming the
+    file when it is not such a cache: not an .npz, a key missing, or images that are not
+    (N, h, w, 3) uint8 with segments (N, S, 4) beside them."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in ("images", "segments") if k not in z.files]
+            if missing:
+                raise InputError(f"{path}: not a training-data cache: no {' or '.join(repr(k) for k in missing)} array "
+                                 "(write one with graphtrack train --data)")
+            images, segments = z["images"], z["segments"]
+    except InputError:
+        raise
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    except Exception as e:   # numpy raises ValueError / BadZipFile / EOFError for a file that is not an .npz
+        raise InputError(f"{path}: not a readable .npz training-data cache ({type(e).__name__})") from None
+    if images.dtype != np.uint8 or images.ndim != 4 or images.shape[3] != 3 or len(images) == 0:
+        raise InputError(f"{path}: 'images' must be (N, h, w, 3) uint8 with N >= 1, "
+                         f"got {images.shape} {images.dtype}")
+    if segments.ndim != 3 or segments.shape[0] != len(images) or segments.shape[2] != 4:
+        raise InputError(f"{path}: 'segments' must be (N, S, 4) with N = {len(images)} images, got {segments.shape}")
+    return images, segments.astype(np.float32)
