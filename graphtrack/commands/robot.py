@@ -15,7 +15,8 @@ from pathlib import Path
 
 from graphtrack.commands.common import HelpFormatter, output_path
 from graphtrack.errors import InputError
-from graphtrack.robot.description import load_dvrk_config, load_robot_json, save_robot_json
+from graphtrack.robot.description import (load_dvrk_config, load_robot_json, parse_robot,
+                                          save_robot_json)
 from graphtrack.robot.psm import psm_large_needle_driver
 
 
@@ -28,6 +29,13 @@ def run(args) -> int:
     else:
         features, source = psm_large_needle_driver(), "graphtrack's Large Needle Driver model"
     robot = load_dvrk_config(args.arm_config, args.tool_config, features_from=features)
+    # checked before anything is written: an error names the inputs, not the file not yet written
+    try:
+        parse_robot(robot.to_json(), Path(f"{args.arm_config} + {args.tool_config} with the features of {source}"))
+    except InputError as e:
+        hint = "" if robot.has_gripper else (f" ({args.tool_config} has no 'jaw' section, so the chain has no "
+                                             "jaw links: give --features-from a robot.json of a tool without a jaw)")
+        raise InputError(f"{e}{hint}") from None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         save_robot_json(out, robot)

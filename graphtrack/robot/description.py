@@ -305,6 +305,8 @@ def save_robot_json(path: str | Path, robot: RobotDescription) -> None:
 def _dvrk_dh(path: Path) -> tuple[list[DHJoint], dict]:
     doc = _read_json(path)
     d = _Doc(path)
+    if not isinstance(doc, dict):
+        d.fail("document", f"expected a JSON object (a dVRK configuration file), got a {type(doc).__name__}")
     dh = doc.get("DH")
     if not isinstance(dh, dict):
         d.fail("DH", "missing object")
@@ -324,7 +326,8 @@ def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
 
     If the arm file lists the whole PSM (six or more joints, the older
     ``psm-large-needle-driver.json`` layout), its first three are taken and the
-    tool file supplies the rest. The dVRK files hold no visual features:
+    tool file supplies the rest: its 3 joints, or the last 3 of a whole-PSM file's 6
+    (any other count is refused). The dVRK files hold no visual features:
     ``features_from`` (e.g. a robot.json) supplies them. The jaw exists when
     the tool file says so (a ``jaw`` section or a 7th joint) unless
     ``has_gripper`` overrides.
@@ -333,7 +336,9 @@ def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
     tool, tool_doc = _dvrk_dh(Path(tool_file))
     if len(arm) < 3:
         raise InputError(f"{arm_file}: DH: expected at least 3 arm joints, got {len(arm)}")
-    tool = tool[-3:] if len(tool) > 3 else tool
+    if len(tool) not in (3, 6):
+        raise InputError(f"{tool_file}: DH: expected the tool's 3 joints (4-6) or a whole PSM's 6, got {len(tool)}")
+    tool = tool[-3:]
     grip = has_gripper if has_gripper is not None else bool("jaw" in tool_doc or len(tool) > 3)
     base = features_from
     if base is None:
