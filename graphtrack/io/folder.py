@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError, read_text
+from graphtrack.io.decode import read_image_file
 from graphtrack.io.frame import Frame
 from graphtrack.io.video import open_video
 
@@ -144,8 +145,8 @@ class FolderSource:
                 if p is None:
                     yield k, None, f"no image file frames/{k:06d}.* (missing)"
                     continue
-                img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-                yield k, img, None if img is not None else f"{p.name} does not decode"
+                img, why = read_image_file(p)
+                yield k, img, why
             return
         cap = open_video(self.video)
         if not cap.isOpened():
@@ -171,7 +172,7 @@ class FolderSource:
         if self.right_files is None:
             return None
         p = self.right_files.get(k)
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR) if p is not None else None
+        img = read_image_file(p)[0] if p is not None else None
         if img is None:
             self.right_skips["missing" if p is None else "corrupt"] += 1
         return img

@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import InputError
+from graphtrack.io.decode import decode_bytes
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
@@ -23,10 +24,9 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
     an encoding graphtrack does not read (every frame would fail alike).
     """
     if msgtype == COMPRESSED_TYPE:
-        buf = np.asarray(msg.data, dtype=np.uint8).ravel()
-        img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if buf.size else None
+        img, why = decode_bytes(msg.data)
         if img is None:
-            raise ValueError(f"compressed image ({msg.format!r}) does not decode")
+            raise ValueError(f"compressed image ({msg.format!r}) does not decode" + (f" ({why})" if why else ""))
         return img
     enc = msg.encoding.lower()
     channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "8uc3": 3, "rgba8": 4, "bgra8": 4}
