@@ -9,7 +9,6 @@ import json
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from graphtrack.cli import main
@@ -66,3 +65,16 @@ def test_wrong_arm_is_one_clear_error(psm2_dvrk2, tmp_path, capsys):
                  "--estimator", "kinematics", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "PSM2" in err[0] and "--arm" in err[0], err
+
+
+def test_a_missing_jaw_topic_is_named_as_this_arm_and_version_call_it(psm2_dvrk2, tmp_path, capsys):
+    seq = tmp_path / "seq"
+    shutil.copytree(psm2_dvrk2, seq)
+    frames = [f for f in open_recording(psm2_dvrk2).frames() if not isinstance(f, FrameError)][:5]
+    for f in frames:
+        f.jaw = float("nan")   # write_bag: no jaw message
+    (seq / "psm2.bag").unlink()
+    write_bag(seq / "psm2.bag", frames, compressed=True, image_format="jpeg", arm="PSM2", dvrk_version=2)
+    assert main(["track", str(seq), "--out", str(tmp_path / "o"), "--estimator", "kinematics", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no messages on /PSM2/jaw/measured_js" in err[0] and "PSM1" not in err[0], err

@@ -206,7 +206,7 @@ def test_nearest_header_stamp_sync(tmp_path):
 
 def test_sync_tie_takes_earlier_and_zero_stamp_uses_record_time(tmp_path):
     ts = typestore()
-    s = 10**9
+    s = 10**7   # 10 ms: every image has a joint reading within MAX_JOINT_GAP_S
     img = np.zeros((H, W, 3), np.uint8)
     msgs = [(JOINTS, "sensor_msgs/msg/JointState", 1, joint_msg(ts, 9 * s, [9.0] * 6)),
             (JOINTS, "sensor_msgs/msg/JointState", 2, joint_msg(ts, 11 * s, [11.0] * 6)),
@@ -217,7 +217,7 @@ def test_sync_tie_takes_earlier_and_zero_stamp_uses_record_time(tmp_path):
     write_custom_bag(seq / "rec.bag", msgs)
     out = ok_frames(items(open_recording(seq, **NO_ROBOT)))
     assert out[0].joints[0] == 9.0
-    assert out[1].stamp == 19.0 and out[1].joints[0] == 20.0
+    assert out[1].stamp == 19 * s / 1e9 and out[1].joints[0] == 20.0
 
 
 # -- ROS 2 ----------------------------------------------------------------------------------

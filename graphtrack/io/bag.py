@@ -11,7 +11,9 @@ by :mod:`graphtrack.io.image_msg`):
    stamps (ns) and positions;
 2. the left images (``/stereo/left/image``, else ``/stereo/left/image/compressed``)
    in bag order, decoded one at a time; each takes the joint and jaw messages
-   whose header stamps are nearest its own header stamp (ties: the earlier one).
+   whose header stamps are nearest its own header stamp (ties: the earlier one);
+   with no joint reading within ``MAX_JOINT_GAP_S`` of it the frame is skipped
+   (``no_joint_reading``: joints not recorded then, or stamped on another clock).
    Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
    alongside, in bag order, with a small look-ahead; a left image takes the right
    image whose header stamp is nearest its own if they differ by at most
@@ -33,9 +35,6 @@ after frame k"); frame numbers are never shifted silently.
 """
 from __future__ import annotations
 
-import math
-import struct
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
@@ -45,6 +44,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from graphtrack.errors import FrameError, InputError
 from graphtrack.io.bag1scan import Bag1Scan
+from graphtrack.io.bag_stamps import JointTable, header_ns, raw_header_ns
 from graphtrack.io.frame import Frame
 from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE, decode_image, noise_span
 from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
@@ -54,63 +54,9 @@ RIGHT_IMAGE_TOPIC = "/stereo/right/image"
 RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
-
-
-# -- stamps -----------------------------------------------------------
-def to_ns(stamp: float) -> int:
-    """Seconds (float) -> integer nanoseconds, exact to the float's resolution."""
-    sec = math.floor(stamp)
-    ns = int(round((stamp - sec) * 1e9))
-    return int(sec) * 1_000_000_000 + ns
-
-
-def _header_ns(msg, fallback_ns: int) -> int:
-    st = msg.header.stamp
-    ns = int(st.sec) * 1_000_000_000 + int(st.nanosec)
-    return ns if ns != 0 else int(fallback_ns)
-
-
-def _raw_header_ns(raw: bytes, ros2: bool) -> int:
-    """Header stamp straight from serialized bytes (no image decoding): ROS 1 seq,sec,nsec;
-    CDR: 4-byte encapsulation, then sec,nanosec."""
-    if ros2:
-        endian = "<" if raw[1] == 1 else ">"
-        sec, nsec = struct.unpack_from(endian + "iI", raw, 4)
-    else:
-        sec, nsec = struct.unpack_from("<II", raw, 4)
-    return sec * 1_000_000_000 + nsec
-
-
-# -- joint table ------------------------------------------------------------------------
-@dataclass
-class JointTable:
-    """Joint or jaw readings sorted by header stamp: stamps (N,) ns, values (N, m) padded
-    with NaN, lengths (N,) the number of values each message carried."""
-
-    stamps: np.ndarray
-    values: np.ndarray
-    lengths: np.ndarray
-
-    @classmethod
-    def build(cls, stamps: list[int], values: list[np.ndarray]) -> "JointTable":
-        n = len(stamps)
-        width = max((len(v) for v in values), default=0)
-        arr = np.full((n, width), np.nan)
-        lengths = np.zeros(n, dtype=int)
-        for i, v in enumerate(values):
-            arr[i, : len(v)] = v
-            lengths[i] = len(v)
-        order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
-        return cls(np.asarray(stamps, dtype=np.int64)[order], arr[order], lengths[order])
-
-    def nearest(self, t_ns: int) -> np.ndarray:
-        """The reading whose stamp is nearest t_ns (ties: the earlier); empty if none."""
-        if len(self.stamps) == 0:
-            return np.zeros(0)
-        i = int(np.searchsorted(self.stamps, t_ns))
-        if i == len(self.stamps) or (i > 0 and t_ns - self.stamps[i - 1] <= self.stamps[i] - t_ns):
-            i -= 1
-        return self.values[i, : self.lengths[i]]
+#: s, the farthest a frame's nearest joint reading may be from its image's stamp (dVRK
+#: joint states come at 100 Hz or more); farther, the frame is skipped as no_joint_reading
+MAX_JOINT_GAP_S = 0.2
 
 
 # -- the reader -------------------------------------------------------------------------
@@ -179,7 +125,7 @@ class BagSource:
                 self._add_joint(joints.setdefault(conn.topic, ([], [])), store.deserialize_ros1, raw,
                                 conn.msgtype, t)
             elif conn.msgtype in (IMAGE_TYPE, COMPRESSED_TYPE):
-                ns = _raw_header_ns(raw, False) if len(raw) >= 12 else 0
+                ns = raw_header_ns(raw, False) if len(raw) >= 12 else 0
                 img_stamps.setdefault(conn.topic, []).append(ns or t)
         self.truncated = True
         why = f"{_one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
@@ -238,7 +184,7 @@ class BagSource:
         except Exception:  # noqa: BLE001 - one undecodable reading: the nearest other one is used
             self.warnings.append(f"{self.path}: skipped an undecodable joint message at t={t_ns} ns")
             return
-        acc[0].append(_header_ns(msg, t_ns))
+        acc[0].append(header_ns(msg, t_ns))
         acc[1].append(np.asarray(msg.position, dtype=float).ravel())
 
     def joint_tables(self) -> tuple[JointTable, JointTable]:
@@ -256,7 +202,17 @@ class BagSource:
                 raise InputError(f"{self.path}: damaged bag data while reading {self.joint_topic} "
                                  f"({_one_line(e)})") from None
             self._table = (JointTable.build(*acc[self.joint_topic]), JointTable.build(*acc[self.jaw_topic]))
+        self._check_jaw(self._table[1])
         return self._table
+
+    def _check_jaw(self, jaw: JointTable) -> None:
+        """InputError when a jaw message holds other than one position (e.g. --jaw-topic
+        naming the joint topic)."""
+        bad = np.flatnonzero(jaw.lengths != 1)
+        if self.has_jaw and bad.size:
+            raise InputError(f"{self.path}: {self.jaw_topic}: a jaw message holds one position, but the one "
+                             f"stamped {jaw.stamps[bad[0]] / 1e9:.3f} s holds {jaw.lengths[bad[0]]} "
+                             "(is --jaw-topic the joint topic?)")
 
     # -- pass 2: images -----------------------------------------------------------------
     def _image_messages(self, topic: str | None = None) -> Iterator[tuple[int, bytes, object]]:
@@ -282,6 +238,7 @@ class BagSource:
         """
         joints, jaw = self.joint_tables()
         index = -1
+        decoded = False   # an image of this pass has decoded
         it = self._image_messages()
         right = (_RightMatcher(self, self._image_messages(self.right_topic))
                  if self.right_topic and right else None)
@@ -301,12 +258,22 @@ class BagSource:
             t_bag, raw, deser = item
             try:
                 msg = deser(raw, self.image_type)
-                stamp_ns = _header_ns(msg, t_bag)
+                stamp_ns = header_ns(msg, t_bag)
                 image = decode_image(msg, self.image_type, f"{self.path}: {self.image_topic}")
-            except InputError:
-                raise
+            except InputError as e:
+                if not decoded:   # the first image's encoding is unreadable: every frame would fail alike
+                    raise
+                yield FrameError(index, "corrupt_image", _one_line(e).removeprefix(f"{self.path}: "))
+                continue
             except Exception as e:  # noqa: BLE001 - undecodable message or image
                 yield FrameError(index, "corrupt_image", f"{self.image_topic}: {_one_line(e)}")
+                continue
+            decoded = True
+            if (gap := joints.gap_s(stamp_ns)) > MAX_JOINT_GAP_S:
+                yield FrameError(index, "no_joint_reading",
+                                 f"the nearest {self.joint_topic} reading is {gap:.3f} s from the image's stamp "
+                                 f"(more than {MAX_JOINT_GAP_S} s: joints not recorded then, or stamped "
+                                 "on another clock)")
                 continue
             if self.image_type == IMAGE_TYPE and (why := noise_span(image)) is not None:
                 yield FrameError(index, "corrupt_image", f"{self.image_topic}: {why}")
@@ -324,7 +291,7 @@ class BagSource:
         if self._stamps is None:
             with self._reader() as r:
                 conns = [c for c in r.connections if c.topic == self.image_topic]
-                self._stamps = np.array([_raw_header_ns(raw, self.ros2) or t
+                self._stamps = np.array([raw_header_ns(raw, self.ros2) or t
                                          for _, t, raw in r.messages(connections=conns)], dtype=np.int64)
         return self._stamps / 1e9
 
@@ -347,7 +314,7 @@ class _RightMatcher:
             self.src.warnings.append(f"{self.src.path}: {self.src.right_topic} unreadable ({_one_line(e)}); "
                                      "later frames are left-only")
             return
-        ns = _raw_header_ns(raw, self.src.ros2) if len(raw) >= 12 else 0
+        ns = raw_header_ns(raw, self.src.ros2) if len(raw) >= 12 else 0
         try:  # deserialized now: the reader behind ``deser`` closes when the messages end
             msg = deser(raw, self.src.right_type)
         except Exception:  # noqa: BLE001 - decoded below as corrupt

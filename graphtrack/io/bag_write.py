@@ -12,7 +12,8 @@ from rosbags.rosbag1 import Writer
 from rosbags.typesys import Stores, get_typestore
 
 from graphtrack.io.bag import (COMPRESSED_TOPIC, IMAGE_TOPIC, JOINT_TYPE, RIGHT_COMPRESSED_TOPIC,
-                               RIGHT_IMAGE_TOPIC, to_ns)
+                               RIGHT_IMAGE_TOPIC)
+from graphtrack.io.bag_stamps import to_ns
 from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE
 from graphtrack.io.topics import jaw_topics, joint_topics
 

@@ -58,9 +58,10 @@ def _open(path: str | Path, options: TrackOptions, quiet: bool,
     """The recording (checked; its warnings printed unless quiet) and its tracking context."""
     rec = open_recording(path, topics=topics)
     if rec.robot.has_gripper and not rec.has_jaw:
+        where = (f"no messages on {rec.source.jaw_topic}; name the jaw topic with --jaw-topic"
+                 if isinstance(getattr(rec.source, "jaw_topic", None), str) else "joints.csv has no 'jaw' column")
         raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
-                         "(/dvrk/PSM1/state_jaw_current or the joints.csv 'jaw' column); the tool tip "
-                         "would be wrong without them")
+                         f"({where}); the tool tip would be wrong without them")
     for w in rec.warnings:
         warn(f"warning: {w}", quiet)
     rec.robot = _evaluated_tip(rec, options.tip_feature)
