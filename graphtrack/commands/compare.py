@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from graphtrack.commands.common import output_path
+from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
 from graphtrack.commands.track import (FORMATTER, add_detection_arguments, add_estimator_arguments,
                                        estimator_options_from_args)
 from graphtrack.detect.base import OBSERVATION_MODELS
@@ -31,6 +31,9 @@ def study_options_from_args(args) -> StudyOptions:
         raise InputError("--max-frames must be positive")
     if args.repeats < 1:
         raise InputError("--repeats must be at least 1")
+    if args.mono and args.stereo not in (None, "mono"):
+        raise InputError(f"--mono and --stereo {args.stereo} contradict each other: give one")
+    views = "mono" if args.mono else (args.stereo or StudyOptions.views)
     detection = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha,
                                  beta=args.beta, markers=not args.no_markers,
                                  shaft_end=not args.no_shaft_end).check()
@@ -38,7 +41,7 @@ def study_options_from_args(args) -> StudyOptions:
                         observations=_list(args.observations, OBSERVATION_MODELS, "observations"),
                         detection=detection, estimation=estimator_options_from_args(args), seed=args.seed,
                         max_frames=args.max_frames, repeats=args.repeats,
-                        views="mono" if args.mono else args.stereo)
+                        views=views, topics=source_from_args(args))
 
 
 def run(args) -> int:
@@ -90,9 +93,11 @@ def add_parser(sub):
                         "with seeds SEED..SEED+N-1 and report their mean")
     p.add_argument("--max-frames", type=int, default=StudyOptions.max_frames, metavar="N",
                    help="frames per recording (default: all)")
-    p.add_argument("--stereo", choices=VIEWS, default=StudyOptions.views,
+    p.add_argument("--stereo", choices=VIEWS, default=None,
                    help="the mono / stereo axis: stereo (both images where a recording has a right one), "
-                        "mono (left only), both (every cell twice; the mono rows read 'ESTIMATOR (mono)')")
+                        "mono (left only), both (every cell twice; the mono rows read 'ESTIMATOR (mono)') "
+                        f"(default: {StudyOptions.views})")
     p.add_argument("--mono", action="store_true", help="left image only (the same as --stereo mono)")
     p.add_argument("--quiet", action="store_true", help="no progress bar; only the table")
+    add_source_arguments(p)
     p.set_defaults(func=run)

@@ -24,7 +24,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from graphtrack.commands.common import output_path
+from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
 from graphtrack.commands.track import FORMATTER, add_detection_arguments
 from graphtrack.detect import detect_raw, make_detector
 from graphtrack.detect.draw import draw_detection
@@ -140,7 +140,7 @@ def run(args) -> int:
         raise InputError("--max-frames must be positive")
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
-                           stereo=not args.mono)
+                           topics=source_from_args(args), stereo=not args.mono)
     if res["frames"] == res["frames_skipped"]:   # never exit 0 with nothing detected
         raise InputError(f"{args.sequence}: no frame could be detected on: {res['frames_skipped']} of "
                          f"{res['frames']} frames skipped (images missing or corrupt, or joints unusable); "
@@ -164,4 +164,5 @@ def add_parser(sub):
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--mono", action="store_true",
                    help="left images only (default: also detections_right.csv when the recording has right images)")
+    add_source_arguments(p)
     p.set_defaults(func=run)

@@ -278,6 +278,10 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
     labels = read_labels(path / "labels.csv", size) if (path / "labels.csv").is_file() else None
     labels_r = read_labels(path / "labels_right.csv", size) if (path / "labels_right.csv").is_file() else None
     source, notes = find_source(path, topics)
+    given = [f"--{k}-topic" for k in ("image", "joint", "jaw") if getattr(topics, k) is not None]
+    if isinstance(source, FolderSource) and given:
+        notes.append(f"{path}: {', '.join(given)} ignored: they name bag topics, and this recording is the "
+                     "folder form (frames/ or video.mp4 with joints.csv)")
     handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
     if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:
         raise InputError(f"{path / 'joints.csv'}: rows hold {source.n_columns} joints (q1..q{source.n_columns}) "
@@ -300,5 +304,12 @@ def _consistency_notes(rec: Recording) -> list[str]:
                          f"(it has {len(rec)} frames; first: frame {beyond[0]}); they are not scored")
     if rec.has_right_images and rec.calibration.right is None:
         notes.append(f"{rec.path}: right images but no K2, D2, R, T in camera_calibration.yaml; "
+                     "tracking the left image only")
+    if rec.labels_right is not None and not rec.stereo:
+        notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
+                     "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
+    right_dir = rec.path / "frames_right"
+    if isinstance(rec.source, FolderSource) and right_dir.exists() and not right_dir.is_dir():
+        notes.append(f"{right_dir}: not a folder, so the recording has no right images; "
                      "tracking the left image only")
     return notes

@@ -6,12 +6,17 @@ from dataclasses import dataclass, field
 from graphtrack.detect.options import OBSERVATION, DetectionOptions
 from graphtrack.estimate import ESTIMATORS
 from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.io.topics import TopicSelection
 from graphtrack.track import TrackOptions
 
 STUDY_VERSION = 1
 #: Options that change a cell's result: a study folder holds one value of each.
 CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
-                "alpha", "beta", "markers", "views")
+                "alpha", "beta", "markers", "views", "shaft_end", "search", "edge_bias",
+                "arm", "image_topic", "joint_topic", "jaw_topic")
+#: the value of an option a study.json written before it existed holds
+CELL_OPTION_DEFAULTS = {"shaft_end": True, "search": True, "edge_bias": True,
+                        "arm": None, "image_topic": None, "joint_topic": None, "jaw_topic": None}
 #: the mono / stereo axis: stereo (both images where the recording has a right one),
 #: mono (left only, ``--mono``), both (every cell twice, the mono one keyed "-mono")
 VIEWS = ("stereo", "mono", "both")
@@ -28,7 +33,7 @@ class StudyOptions:
     baseline once per recording); detection, estimation, seed: as in every cell's
     TrackOptions; max_frames: per recording (None: all); repeats: runs (seeds
     seed .. seed+repeats-1) of each seed-dependent cell; views: the mono / stereo
-    axis (:data:`VIEWS`)."""
+    axis (:data:`VIEWS`); topics: the arm and bag topics read from every recording."""
 
     estimators: list[str] = field(default_factory=lambda: list(ESTIMATORS))
     observations: list[str] = field(default_factory=lambda: [OBSERVATION])
@@ -38,13 +43,16 @@ class StudyOptions:
     max_frames: int | None = None
     repeats: int = 1
     views: str = "stereo"
+    topics: TopicSelection = field(default_factory=TopicSelection)
 
     def cell_options(self) -> dict:
         """The CELL_OPTIONS values (flat, as study.json and done.json store them)."""
-        d, e = self.detection, self.estimation
+        d, e, t = self.detection, self.estimation, self.topics
         return {"detector": d.detector, "weights": d.weights, "max_frames": self.max_frames,
                 "particles": e.particles, "lag": e.lag, "smoother": e.smoother, "seed": self.seed,
-                "alpha": d.alpha, "beta": d.beta, "markers": d.markers, "views": self.views}
+                "alpha": d.alpha, "beta": d.beta, "markers": d.markers, "views": self.views,
+                "shaft_end": d.shaft_end, "search": e.search, "edge_bias": e.edge_bias,
+                "arm": t.arm, "image_topic": t.image, "joint_topic": t.joint, "jaw_topic": t.jaw}
 
 
 @dataclass
@@ -81,7 +89,12 @@ class Cell:
         return TrackOptions(
             estimator=self.estimator, observation=self.observation or OBSERVATION,
             detection=DetectionOptions(detector=o["detector"], weights=o["weights"], alpha=o["alpha"],
-                                       beta=o["beta"], markers=o["markers"]),
+                                       beta=o["beta"], markers=o["markers"], shaft_end=o["shaft_end"]),
             estimation=EstimatorOptions(particles=o["particles"], seed=o["seed"], lag=o["lag"],
-                                        smoother=o["smoother"]),
+                                        smoother=o["smoother"], search=o["search"], edge_bias=o["edge_bias"]),
             seed=o["seed"], stereo=self.stereo)
+
+    def topics(self) -> TopicSelection:
+        """The arm and bag topics the cell reads."""
+        o = self.options
+        return TopicSelection(arm=o["arm"], image=o["image_topic"], joint=o["joint_topic"], jaw=o["jaw_topic"])

@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import re
+import socket
 import shutil
 import sys
 import tempfile
@@ -35,7 +37,7 @@ from graphtrack.track import track
 def _track_into(cell: Cell, out: Path) -> dict:
     limit_threads(1)  # parallelism is across cells: one thread per worker
     result = track(cell.path, out, cell.track_options(), video=cell.video, progress=False,
-                   max_frames=cell.options["max_frames"], quiet=True)
+                   max_frames=cell.options["max_frames"], quiet=True, topics=cell.topics())
     require_tracked(result, out)         # a cell that tracked nothing failed, as `track` would
     require_tool_in_front(result, Path(cell.path) / "handeye.yaml")
     return result
@@ -149,6 +151,24 @@ def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[
     return answers
 
 
+RAY_CONNECT_TIMEOUT_S = 10.0  #: a cluster address that does not answer within this is refused
+
+
+def _probe(address: str) -> None:
+    """InputError unless ``address`` (``host:port`` or ``ray://host:port``) accepts a TCP
+    connection within RAY_CONNECT_TIMEOUT_S: Ray itself retries an unreachable address for
+    many minutes."""
+    m = re.fullmatch(r"(?:\w+://)?\[?([^\]\s]+?)\]?:(\d+)/?", address)
+    if not m:
+        raise InputError(f"--ray {address}: expected 'local', 'auto' or a cluster address HOST:PORT "
+                         "(or ray://HOST:PORT)")
+    try:
+        socket.create_connection((m.group(1), int(m.group(2))), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except (OSError, ValueError) as e:
+        raise InputError(f"--ray {address}: no Ray cluster answers there "
+                         f"({getattr(e, 'strerror', None) or e})") from None
+
+
 def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: bool = False) -> list[dict]:
     """Run the cells as Ray tasks. address: 'local' (start a local instance),
     'auto' (the running cluster) or a cluster address (ray://host:10001, host:6379)."""
@@ -168,7 +188,11 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
                     **{v: "1" for v in THREAD_ENV}}}
                 ray.init(num_cpus=workers or None, **kw)
             else:
+                if address != "auto":
+                    _probe(address)
                 ray.init(address=address, **kw)
+        except InputError:
+            raise
         except Exception as e:  # noqa: BLE001 - connection errors of many kinds
             raise InputError(f"--ray {address}: cannot connect to Ray ({type(e).__name__}: {e})") from None
         started = True

@@ -39,7 +39,7 @@ from pathlib import Path
 from graphtrack.detect.observe import SEEDED_MODELS
 from graphtrack.errors import InputError
 from graphtrack.estimate import estimator_class
-from graphtrack.study.cells import CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions, view_flags
+from graphtrack.study.cells import CELL_OPTION_DEFAULTS, CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions, view_flags
 from graphtrack.study.execute import run_local, run_ray
 from graphtrack.study.report import is_done, plot_accumulated, write_tables
 
@@ -120,6 +120,7 @@ def check_study_folder(out: Path, options: StudyOptions, cells: list[Cell]) -> N
         except (OSError, json.JSONDecodeError):
             raise InputError(f"{doc_path}: unreadable study.json; use another --out or remove it") from None
         old_opts = old.get("options", {})
+        old_opts = {**CELL_OPTION_DEFAULTS, **old_opts}
         diff = [k for k in CELL_OPTIONS if old_opts.get(k) != options.cell_options()[k]]
         if diff:
             what = ", ".join(f"{k}: {old_opts.get(k)!r} there, {options.cell_options()[k]!r} now"

@@ -13,7 +13,7 @@ from graphtrack.errors import InputError
 from graphtrack.eval.metrics import accumulated_error, tip_error_series
 from graphtrack.io.labels import read_labels
 from graphtrack.io.trajectory import read_trajectory
-from graphtrack.study.cells import Cell
+from graphtrack.study.cells import CELL_OPTION_DEFAULTS, Cell
 
 
 def is_done(cell: Cell) -> bool:
@@ -24,7 +24,9 @@ def is_done(cell: Cell) -> bool:
         doc = json.loads(p.read_text())
     except (OSError, json.JSONDecodeError):
         return False
-    return doc.get("options") == cell.options and (Path(cell.out) / "metrics.json").is_file()
+    # a cell done before an option existed holds that option's default
+    stored, wanted = ({**CELL_OPTION_DEFAULTS, **(o or {})} for o in (doc.get("options"), cell.options))
+    return stored == wanted and (Path(cell.out) / "metrics.json").is_file()
 
 
 def cell_status(cell: Cell) -> dict:
