@@ -1,0 +1,248 @@
+"""Bad input to the commands other than ``track`` (train, simulate, robot, compare,
+detect) and to the recording readers: each ends with one line naming the option, file,
+topic or frame and exit status 2, or with a counted per-frame skip, and the codec
+libraries' own messages never reach the terminal."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from graphtrack.cli import main
+from graphtrack.errors import FrameError, InputError
+from graphtrack.io.recording import open_recording
+from graphtrack.io.topics import TopicSelection
+
+from test_io_recording import (JAW, JOINTS, NO_ROBOT, image_msg, joint_msg, typestore, write_custom_bag,
+                               write_meta)
+
+REPO = Path(__file__).resolve().parents[1]
+DVRK = REPO / "graphtrack" / "data" / "dvrk"
+IMAGE = "/stereo/left/image"
+
+
+def run_cli(args, capsys) -> tuple[int, str]:
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    return code, capsys.readouterr().err
+
+
+def error_line(err: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.startswith("graphtrack: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def folder_rec(tmp_path_factory):
+    from graphtrack.sim.simulate import simulate
+
+    return simulate(tmp_path_factory.mktemp("rec") / "folder", frames=6, size=(270, 480), form="folder",
+                    progress=False)
+
+
+# -- train ----------------------------------------------------------------------------------
+def test_train_refuses_what_would_fail_after_hours(tmp_path, capsys):
+    out = tmp_path / "w.pt"
+    cases = [(["--out", tmp_path], "is a folder"),
+             (["--out", tmp_path / "missing" / "w.pt"], "folder not found"),
+             (["--out", out, "--seed", "-1"], "--seed must be a non-negative integer"),
+             (["--out", out, "--epochs", "0"], "--epochs must be at least 1")]
+    for args, words in cases:
+        code, err = run_cli(["train", "--quiet", *args], capsys)
+        assert code == 2 and words in error_line(err), (args, err)
+    assert not out.exists()
+
+
+def test_train_names_a_data_cache_it_cannot_use(tmp_path, capsys):
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"not a zip at all")
+    keyless = tmp_path / "keyless.npz"
+    np.savez(keyless, frames=np.zeros((2, 4, 4, 3), np.uint8))
+    shaped = tmp_path / "shaped.npz"
+    np.savez(shaped, images=np.zeros((2, 4, 4), np.uint8), segments=np.zeros((2, 6, 4), np.float32))
+    for path, words in ((garbage, "not a readable .npz"), (keyless, "no 'images' or 'segments'"),
+                        (shaped, "'images' must be (N, h, w, 3) uint8")):
+        code, err = run_cli(["train", "--quiet", "--out", tmp_path / "w.pt", "--data", path], capsys)
+        line = error_line(err)
+        assert code == 2 and str(path) in line and words in line, err
+    assert not (tmp_path / "w.pt").exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_train_refuses_a_read_only_output_folder(tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        code, err = run_cli(["train", "--quiet", "--out", ro / "w.pt"], capsys)
+        assert code == 2 and "not writable (--out)" in error_line(err)
+    finally:
+        ro.chmod(0o700)
+
+
+def test_simulate_and_track_refuse_a_negative_seed_and_absurd_particles(tmp_path, capsys):
+    code, err = run_cli(["simulate", tmp_path / "s", "--seed", "-1", "--no-progress"], capsys)
+    assert code == 2 and "--seed must be a non-negative integer" in error_line(err)
+    assert not (tmp_path / "s").exists()
+    code, err = run_cli(["track", tmp_path / "none", "--out", tmp_path / "o", "--estimator", "pf",
+                         "--particles", "1000000000"], capsys)
+    assert code == 2 and "--particles must be between 1 and 100000" in error_line(err)
+
+
+# -- robot ----------------------------------------------------------------------------------
+def _tool_without_jaw(path: Path, links: int = 3) -> Path:
+    import re
+
+    text = re.sub(r"/\*.*?\*/", "", (DVRK / "LARGE_NEEDLE_DRIVER_400006.json").read_text(), flags=re.S)
+    doc = json.loads(re.sub(r"//[^\n]*", "", text))
+    doc.pop("jaw")
+    dh = doc["DH"]
+    key = "links" if "links" in dh else "joints"
+    dh[key] = (dh[key] * 3)[:links]
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_robot_refuses_files_that_are_not_dvrk_objects(tmp_path, capsys):
+    listed = tmp_path / "list.json"
+    listed.write_text("[1, 2]")
+    out = tmp_path / "robot.json"
+    code, err = run_cli(["robot", listed, DVRK / "LARGE_NEEDLE_DRIVER_400006.json", "--out", out], capsys)
+    assert code == 2 and "list.json: document: expected a JSON object" in error_line(err)
+    four = _tool_without_jaw(tmp_path / "four.json", links=4)
+    code, err = run_cli(["robot", DVRK / "psm.json", four, "--out", out], capsys)
+    assert code == 2 and "four.json: DH: expected the tool's 3 joints (4-6) or a whole PSM's 6, got 4" \
+        in error_line(err)
+    assert not out.exists()
+
+
+def test_robot_blames_the_jawless_tool_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "robot.json"
+    code, err = run_cli(["robot", DVRK / "psm.json", _tool_without_jaw(tmp_path / "nojaw.json"),
+                         "--out", out], capsys)
+    line = error_line(err)
+    assert code == 2 and "nojaw.json has no 'jaw' section" in line and "--features-from" in line
+    assert not out.exists()
+
+
+# -- compare / detect -----------------------------------------------------------------------
+def test_compare_refuses_an_unreachable_ray_cluster_quickly(folder_rec, tmp_path, capsys):
+    t = time.perf_counter()
+    code, err = run_cli(["compare", folder_rec, "--out", tmp_path / "study", "--estimators", "kinematics",
+                         "--quiet", "--ray", "127.0.0.1:1"], capsys)
+    assert code == 2 and "--ray 127.0.0.1:1: no Ray cluster answers there" in error_line(err)
+    assert time.perf_counter() - t < 60
+
+
+def test_compare_refuses_contradicting_views_and_takes_the_arm(folder_rec, tmp_path, capsys):
+    code, err = run_cli(["compare", folder_rec, "--out", tmp_path / "a", "--stereo", "both", "--mono"], capsys)
+    assert code == 2 and "--mono and --stereo both contradict" in error_line(err)
+    code, err = run_cli(["compare", folder_rec, "--out", tmp_path / "b", "--estimators", "kinematics",
+                         "--quiet", "--arm", "PSM1"], capsys)
+    assert code == 0, err
+    assert json.loads((tmp_path / "b" / "study.json").read_text())["options"]["arm"] == "PSM1"
+
+
+def test_detect_takes_the_arm_and_notes_topics_a_folder_cannot_use(folder_rec, tmp_path, capsys):
+    code, err = run_cli(["detect", folder_rec, "--out", tmp_path / "d", "--quiet", "--max-frames", "2",
+                         "--arm", "PSM1", "--joint-topic", "/x/joints"], capsys)
+    assert code == 0, err
+    rec = open_recording(folder_rec, topics=TopicSelection(joint="/x/joints"))
+    assert any("--joint-topic ignored" in w for w in rec.warnings), rec.warnings
+
+
+# -- recordings: notes on parts that are not used -------------------------------------------
+def test_notes_on_right_inputs_a_recording_cannot_use(folder_rec, tmp_path):
+    import shutil
+
+    rec_dir = tmp_path / "rec"
+    shutil.copytree(folder_rec, rec_dir)
+    (rec_dir / "frames_right").write_text("not a folder")
+    shutil.copy(rec_dir / "labels.csv", rec_dir / "labels_right.csv")
+    warnings = open_recording(rec_dir).warnings
+    assert any("frames_right: not a folder" in w for w in warnings), warnings
+    assert any("labels_right.csv: not scored: the recording is not stereo" in w for w in warnings), warnings
+
+
+# -- bags: per-frame problems are counted skips, whole-bag ones one line ----------------------
+H, W = 48, 64
+
+
+def _bag(tmp_path, n=6, joint_offset_ns=0, odd_frame=None, jaw_values=1, missing_joints=()):
+    ts = typestore()
+    seq = write_meta(tmp_path / "seq", h=H, w=W)
+    img = np.full((H, W, 3), 90, np.uint8)
+    msgs = []
+    for i in range(n):
+        t = 1_600_000_000 * 10**9 + i * 33_333_333
+        if i == odd_frame:
+            mono16 = np.zeros((H, W * 2), np.uint8)
+            m = image_msg(ts, t, mono16[:, :W], encoding="mono16")
+            m = type(m)(header=m.header, height=H, width=W, encoding="mono16", is_bigendian=0, step=2 * W,
+                        data=mono16.ravel())
+        else:
+            m = image_msg(ts, t, img)
+        msgs.append((IMAGE, "sensor_msgs/msg/Image", t, m))
+        if i not in missing_joints:
+            msgs.append((JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t + joint_offset_ns, [0.1] * 6)))
+        msgs.append((JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, [0.2] * jaw_values)))
+    write_custom_bag(seq / "rec.bag", msgs)
+    return seq
+
+
+def test_an_unsupported_encoding_mid_bag_is_one_counted_skip(tmp_path):
+    out = list(open_recording(_bag(tmp_path, odd_frame=3), **NO_ROBOT).frames())
+    bad = [f for f in out if isinstance(f, FrameError)]
+    assert [f.frame for f in bad] == [3] and bad[0].reason == "corrupt_image" and "mono16" in str(bad[0])
+
+
+def test_joints_on_another_clock_or_missing_skip_the_frames(tmp_path):
+    out = list(open_recording(_bag(tmp_path / "a", joint_offset_ns=3600 * 10**9), **NO_ROBOT).frames())
+    assert all(isinstance(f, FrameError) and f.reason == "no_joint_reading" for f in out)
+    assert "3600.000 s" in str(out[0])
+    # joints lost from frame 1 to 24 of 30 (30 fps): frames farther than 0.2 s from a reading are skipped
+    out = list(open_recording(_bag(tmp_path / "b", n=30, missing_joints=range(1, 25)), **NO_ROBOT).frames())
+    far = [i for i in range(1, 25) if min(i, 25 - i) * 33_333_333 > 0.2e9]
+    assert far == list(range(7, 19))
+    assert [f.frame for f in out if isinstance(f, FrameError)] == far
+    assert len(out) == 30
+
+
+def test_a_jaw_topic_with_several_values_is_refused(tmp_path):
+    with pytest.raises(InputError, match=r"state_jaw_current: a jaw message holds one position.* holds 6"):
+        list(open_recording(_bag(tmp_path, jaw_values=6), **NO_ROBOT).frames())
+
+
+# -- codec messages -------------------------------------------------------------------------
+def test_codec_messages_stay_off_the_terminal(tmp_path):
+    """Damaged PNG / JPEG, a link to nothing and a float TIFF: read in a fresh process whose
+    stderr is captured; OpenCV's imread is the oracle that the damaged files do not decode."""
+    im = np.random.default_rng(0).integers(0, 255, (60, 80, 3), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "ok.png"), im)
+    cv2.imwrite(str(tmp_path / "ok.jpg"), im)
+    for ext in ("png", "jpg"):
+        data = (tmp_path / f"ok.{ext}").read_bytes()
+        (tmp_path / f"cut.{ext}").write_bytes(data[: len(data) // 2])
+    os.symlink(tmp_path / "nothing.png", tmp_path / "dangling.png")
+    cv2.imwrite(str(tmp_path / "float.tiff"), np.random.default_rng(1).random((20, 30)).astype(np.float32))
+    names = ["ok.png", "ok.jpg", "cut.png", "cut.jpg", "dangling.png", "float.tiff"]
+    code = ("import json, sys; from pathlib import Path; from graphtrack.io.decode import read_image_file\n"
+            f"d = Path({str(tmp_path)!r}); names = {names!r}\n"
+            "print(json.dumps({n: read_image_file(d / n)[1] for n in names}))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and p.stderr == "", p.stderr
+    why = json.loads(p.stdout)
+    assert why["ok.png"] is None and why["ok.jpg"] is None
+    assert cv2.imread(str(tmp_path / "cut.png")) is None and why["cut.png"].startswith("cut.png does not decode")
+    assert "PNG" in why["cut.png"] and "WARN" not in why["cut.png"]  # the library's words are the reason
+    assert why["cut.jpg"].startswith("cut.jpg does not decode")
+    assert why["dangling.png"] == "dangling.png is missing (a link to nothing)"
+    assert why["float.tiff"] is None or "does not decode" in why["float.tiff"]
