@@ -37,7 +37,6 @@ COUNTS = (100, 300, 1000, 3000, 10000)
 
 def _inputs(n_frames: int = 64):
     from graphtrack.detect.base import Observation
-    from graphtrack.io.frame import Frame
     from graphtrack.robot.features import base_features
     from graphtrack.sim.synthetic import HANDEYE_ERROR, make_scene, sequence
 

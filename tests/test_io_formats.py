@@ -114,7 +114,7 @@ HEADER = "frame,stamp,tx,ty,tz,qx,qy,qz,qw,tip_u,tip_v,ms"
 
 
 def test_trajectory_header_exact(tmp_path):
-    with TrajectoryWriter(tmp_path) as w:
+    with TrajectoryWriter(tmp_path):
         pass
     assert (tmp_path / "trajectory.csv").read_text() == HEADER + "\n"
     assert (tmp_path / "trajectory.tum").read_text() == ""

@@ -50,7 +50,6 @@ def test_shaft_silhouette_matches_limb_lines(clean):
         along = pts[:, 0] if rows else pts[:, 1]
         keep = []
         g = gray if rows else gray.T
-        T = (bg + 13.0) / 2
         for k in np.unique(key):
             line = g[int(k)]
             idx = np.nonzero(key == k)[0]
