@@ -53,7 +53,8 @@ def test_train_refuses_what_would_fail_after_hours(tmp_path, capsys):
     out = tmp_path / "w.pt"
     cases = [(["--out", tmp_path], "is a folder"),
              (["--out", tmp_path / "missing" / "w.pt"], "folder not found"),
-             (["--out", out, "--seed", "-1"], "--seed must be a non-negative integer"),
+             (["--out", out, "--seed", "-1"], "--seed must be an integer in 0..4294967295, got -1"),
+             (["--out", out, "--seed", str(2**64)], "--seed must be an integer in 0..4294967295"),
              (["--out", out, "--epochs", "0"], "--epochs must be at least 1")]
     for args, words in cases:
         code, err = run_cli(["train", "--quiet", *args], capsys)
@@ -68,8 +69,15 @@ def test_train_names_a_data_cache_it_cannot_use(tmp_path, capsys):
     np.savez(keyless, frames=np.zeros((2, 4, 4, 3), np.uint8))
     shaped = tmp_path / "shaped.npz"
     np.savez(shaped, images=np.zeros((2, 4, 4), np.uint8), segments=np.zeros((2, 6, 4), np.float32))
+    tiny = tmp_path / "tiny.npz"
+    np.savez(tiny, images=np.zeros((1, 1, 1, 3), np.uint8), segments=np.zeros((1, 6, 4), np.float32))
+    no_segments = tmp_path / "no_segments.npz"
+    np.savez(no_segments, images=np.zeros((2, 32, 32, 3), np.uint8), segments=np.zeros((2, 0, 4), np.float32))
+    words_as_segments = tmp_path / "words.npz"
+    np.savez(words_as_segments, images=np.zeros((2, 32, 32, 3), np.uint8), segments=np.full((2, 6, 4), "x"))
     for path, words in ((garbage, "not a readable .npz"), (keyless, "no 'images' or 'segments'"),
-                        (shaped, "'images' must be (N, h, w, 3) uint8")):
+                        (shaped, "'images' must be (N, h, w, 3) uint8"), (tiny, "h, w >= 16"),
+                        (no_segments, "S >= 1"), (words_as_segments, "'segments' must be numbers")):
         code, err = run_cli(["train", "--quiet", "--out", tmp_path / "w.pt", "--data", path], capsys)
         line = error_line(err)
         assert code == 2 and str(path) in line and words in line, err
@@ -90,7 +98,7 @@ def test_train_refuses_a_read_only_output_folder(tmp_path, capsys):
 
 def test_simulate_and_track_refuse_a_negative_seed_and_absurd_particles(tmp_path, capsys):
     code, err = run_cli(["simulate", tmp_path / "s", "--seed", "-1", "--no-progress"], capsys)
-    assert code == 2 and "--seed must be a non-negative integer" in error_line(err)
+    assert code == 2 and "--seed must be an integer in 0..4294967295" in error_line(err)
     assert not (tmp_path / "s").exists()
     code, err = run_cli(["track", tmp_path / "none", "--out", tmp_path / "o", "--estimator", "pf",
                          "--particles", "1000000000"], capsys)
@@ -116,7 +124,8 @@ def test_robot_refuses_files_that_are_not_dvrk_objects(tmp_path, capsys):
     listed.write_text("[1, 2]")
     out = tmp_path / "robot.json"
     code, err = run_cli(["robot", listed, DVRK / "LARGE_NEEDLE_DRIVER_400006.json", "--out", out], capsys)
-    assert code == 2 and "list.json: document: expected a JSON object" in error_line(err)
+    assert code == 2 and "list.json: document: expected a JSON object (a dVRK configuration file), got an array" \
+        in error_line(err)
     four = _tool_without_jaw(tmp_path / "four.json", links=4)
     code, err = run_cli(["robot", DVRK / "psm.json", four, "--out", out], capsys)
     assert code == 2 and "four.json: DH: expected the tool's 3 joints (4-6) or a whole PSM's 6, got 4" \
@@ -140,6 +149,19 @@ def test_compare_refuses_an_unreachable_ray_cluster_quickly(folder_rec, tmp_path
                          "--quiet", "--ray", "127.0.0.1:1"], capsys)
     assert code == 2 and "--ray 127.0.0.1:1: no Ray cluster answers there" in error_line(err)
     assert time.perf_counter() - t < 60
+
+
+def test_a_study_folder_without_finished_cells_takes_corrected_options(folder_rec, tmp_path, capsys):
+    study = tmp_path / "study"
+    args = ["compare", folder_rec, "--out", study, "--estimators", "kinematics", "--quiet"]
+    code, err = run_cli(args + ["--arm", "PSM2"], capsys)     # the recording's handeye.yaml is PSM1's
+    assert code == 2 and "PSM2" in err
+    code, err = run_cli(args, capsys)                          # corrected: accepted, not "other options"
+    assert code == 0, err
+    code, err = run_cli(args + ["--arm", "PSM2"], capsys)     # now a cell has finished: refused
+    assert code == 2 and "holds a study made with other options (arm: None there, 'PSM2' now)" in error_line(err)
+    code, err = run_cli(args + ["--ray", ""], capsys)
+    assert code == 2 and "--ray : expected 'local', 'auto' or a cluster address" in error_line(err)
 
 
 def test_compare_refuses_contradicting_views_and_takes_the_arm(folder_rec, tmp_path, capsys):
@@ -176,7 +198,8 @@ def test_notes_on_right_inputs_a_recording_cannot_use(folder_rec, tmp_path):
 H, W = 48, 64
 
 
-def _bag(tmp_path, n=6, joint_offset_ns=0, odd_frame=None, jaw_values=1, missing_joints=()):
+def _bag(tmp_path, n=6, joint_offset_ns=0, odd_frame=None, jaw_values=1, missing_joints=(), missing_jaw=(),
+         empty_jaw=()):
     ts = typestore()
     seq = write_meta(tmp_path / "seq", h=H, w=W)
     img = np.full((H, W, 3), 90, np.uint8)
@@ -193,7 +216,9 @@ def _bag(tmp_path, n=6, joint_offset_ns=0, odd_frame=None, jaw_values=1, missing
         msgs.append((IMAGE, "sensor_msgs/msg/Image", t, m))
         if i not in missing_joints:
             msgs.append((JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t + joint_offset_ns, [0.1] * 6)))
-        msgs.append((JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, [0.2] * jaw_values)))
+        if i not in missing_jaw:
+            jaw = [] if i in empty_jaw else [0.2] * jaw_values
+            msgs.append((JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, jaw)))
     write_custom_bag(seq / "rec.bag", msgs)
     return seq
 
@@ -216,9 +241,23 @@ def test_joints_on_another_clock_or_missing_skip_the_frames(tmp_path):
     assert len(out) == 30
 
 
-def test_a_jaw_topic_with_several_values_is_refused(tmp_path):
+def test_joints_recorded_at_a_low_rate_are_used_and_a_lost_jaw_skips(tmp_path):
+    # joints at 2 Hz (every 15th frame at 30 fps): within 3 median periods, so every frame is kept
+    slow = [i for i in range(60) if i % 15]
+    out = list(open_recording(_bag(tmp_path / "a", n=60, missing_joints=slow), **NO_ROBOT).frames())
+    assert not [f for f in out if isinstance(f, FrameError)]
+    # the jaw lost from frame 1 to 24: the frames more than 0.2 s from a jaw reading are skipped
+    out = list(open_recording(_bag(tmp_path / "b", n=30, missing_jaw=range(1, 25)), **NO_ROBOT).frames())
+    bad = [f for f in out if isinstance(f, FrameError)]
+    assert [f.frame for f in bad] == list(range(7, 19)) and JAW in str(bad[0])
+
+
+def test_a_jaw_topic_with_several_values_is_refused_and_an_empty_one_is_nan(tmp_path):
     with pytest.raises(InputError, match=r"state_jaw_current: a jaw message holds one position.* holds 6"):
-        list(open_recording(_bag(tmp_path, jaw_values=6), **NO_ROBOT).frames())
+        list(open_recording(_bag(tmp_path / "a", jaw_values=6), **NO_ROBOT).frames())
+    out = list(open_recording(_bag(tmp_path / "b", empty_jaw=[2]), **NO_ROBOT).frames())
+    assert isinstance(out[2], FrameError) and out[2].reason == "nan_joints"   # a counted skip, not a refusal
+    assert all(f.jaw == 0.2 for k, f in enumerate(out) if k != 2)
 
 
 # -- codec messages -------------------------------------------------------------------------
@@ -245,4 +284,38 @@ def test_codec_messages_stay_off_the_terminal(tmp_path):
     assert "PNG" in why["cut.png"] and "WARN" not in why["cut.png"]  # the library's words are the reason
     assert why["cut.jpg"].startswith("cut.jpg does not decode")
     assert why["dangling.png"] == "dangling.png is missing (a link to nothing)"
-    assert why["float.tiff"] is None or "does not decode" in why["float.tiff"]
+    # libtiff's complaint is the reason exactly when OpenCV itself cannot read the file
+    assert (why["float.tiff"] is None) == (cv2.imread(str(tmp_path / "float.tiff")) is not None)
+
+
+def test_a_harmless_jpeg_warning_keeps_the_image_and_threads_keep_stderr(tmp_path):
+    """libjpeg warns of extraneous bytes before a marker (many MJPEG cameras) but decodes
+    the image intact: it is kept, equal to cv2.imdecode's; four threads decoding damaged
+    and good images at once leave fd 2 as it was; a decode that raises restores it."""
+    code = r"""
+import os, sys, threading, cv2, numpy as np
+from graphtrack.io import decode
+img = (np.random.default_rng(0).random((64, 64, 3)) * 255).astype(np.uint8)
+enc = cv2.imencode(".jpg", img)[1].tobytes()
+i = enc.index(b"\xff\xc4")
+extra = enc[:i] + b"\x12\x34" + enc[i:]
+im, msg = decode.decode_bytes(extra)
+with decode.library_messages():   # the oracle prints the same warning
+    ref = cv2.imdecode(np.frombuffer(extra, np.uint8), cv2.IMREAD_COLOR)
+assert im is not None and np.array_equal(im, ref) and "extraneous" in msg, msg
+png = cv2.imencode(".png", img)[1].tobytes()
+def work():
+    for _ in range(30):
+        assert decode.decode_bytes(png[: len(png) // 2])[0] is None
+        assert decode.decode_bytes(png)[0] is not None
+ts = [threading.Thread(target=work) for _ in range(4)]
+[t.start() for t in ts]; [t.join() for t in ts]
+try:
+    with decode.library_messages():
+        raise KeyError("boom")
+except KeyError:
+    pass
+os.write(2, b"fd 2 restored\n")
+"""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and p.stderr == "fd 2 restored\n", p.stderr
