@@ -12,8 +12,9 @@ by :mod:`graphtrack.io.image_msg`):
 2. the left images (``/stereo/left/image``, else ``/stereo/left/image/compressed``)
    in bag order, decoded one at a time; each takes the joint and jaw messages
    whose header stamps are nearest its own header stamp (ties: the earlier one);
-   with no joint reading within ``MAX_JOINT_GAP_S`` of it the frame is skipped
-   (``no_joint_reading``: joints not recorded then, or stamped on another clock).
+   with no joint (or jaw) reading within ``MAX_JOINT_GAP_S``, or 3 median periods of
+   that topic's readings if more, the frame is skipped (``no_joint_reading``: joints
+   not recorded then, or stamped on another clock).
    Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
    alongside, in bag order, with a small look-ahead; a left image takes the right
    image whose header stamp is nearest its own if they differ by at most
@@ -54,8 +55,9 @@ RIGHT_IMAGE_TOPIC = "/stereo/right/image"
 RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
-#: s, the farthest a frame's nearest joint reading may be from its image's stamp (dVRK
-#: joint states come at 100 Hz or more); farther, the frame is skipped as no_joint_reading
+#: s, the farthest a frame's nearest joint (jaw) reading may be from its image's stamp,
+#: or 3 median reading periods when that is more (dVRK joint states come at 100 Hz or
+#: more); farther, the frame is skipped as no_joint_reading
 MAX_JOINT_GAP_S = 0.2
 
 
@@ -205,10 +207,23 @@ class BagSource:
         self._check_jaw(self._table[1])
         return self._table
 
+    def _stale(self, joints: JointTable, jaw: JointTable, stamp_ns: int) -> str | None:
+        """Why the frame stamped ``stamp_ns`` has no usable joint (or, with a jaw topic,
+        jaw) reading: the nearest is farther than the table's tolerance (module doc); None
+        when both are near enough."""
+        for topic, table in ((self.joint_topic, joints), (self.jaw_topic, jaw)):
+            if table is jaw and not self.has_jaw:
+                continue
+            gap, tol = table.gap_s(stamp_ns), table.tolerance_s(MAX_JOINT_GAP_S)
+            if gap > tol:
+                return (f"the nearest {topic} reading is {gap:.3f} s from the image's stamp (more than "
+                        f"{tol:.3g} s: not recorded then, or stamped on another clock)")
+        return None
+
     def _check_jaw(self, jaw: JointTable) -> None:
-        """InputError when a jaw message holds other than one position (e.g. --jaw-topic
-        naming the joint topic)."""
-        bad = np.flatnonzero(jaw.lengths != 1)
+        """InputError when a jaw message holds more than one position (e.g. --jaw-topic
+        naming the joint topic); an empty one leaves its frames' jaw NaN (nan_joints)."""
+        bad = np.flatnonzero(jaw.lengths > 1)
         if self.has_jaw and bad.size:
             raise InputError(f"{self.path}: {self.jaw_topic}: a jaw message holds one position, but the one "
                              f"stamped {jaw.stamps[bad[0]] / 1e9:.3f} s holds {jaw.lengths[bad[0]]} "
@@ -259,6 +274,9 @@ class BagSource:
             try:
                 msg = deser(raw, self.image_type)
                 stamp_ns = header_ns(msg, t_bag)
+                if (stale := self._stale(joints, jaw, stamp_ns)) is not None:   # before decoding: cheap
+                    yield FrameError(index, "no_joint_reading", stale)
+                    continue
                 image = decode_image(msg, self.image_type, f"{self.path}: {self.image_topic}")
             except InputError as e:
                 if not decoded:   # the first image's encoding is unreadable: every frame would fail alike
@@ -269,12 +287,6 @@ class BagSource:
                 yield FrameError(index, "corrupt_image", f"{self.image_topic}: {_one_line(e)}")
                 continue
             decoded = True
-            if (gap := joints.gap_s(stamp_ns)) > MAX_JOINT_GAP_S:
-                yield FrameError(index, "no_joint_reading",
-                                 f"the nearest {self.joint_topic} reading is {gap:.3f} s from the image's stamp "
-                                 f"(more than {MAX_JOINT_GAP_S} s: joints not recorded then, or stamped "
-                                 "on another clock)")
-                continue
             if self.image_type == IMAGE_TYPE and (why := noise_span(image)) is not None:
                 yield FrameError(index, "corrupt_image", f"{self.image_topic}: {why}")
                 continue

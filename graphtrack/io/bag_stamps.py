@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -69,6 +70,16 @@ class JointTable:
             return np.zeros(0)
         i = self._nearest_index(t_ns)
         return self.values[i, : self.lengths[i]]
+
+    def tolerance_s(self, floor: float) -> float:
+        """s: how far a frame may be from its nearest reading: ``floor``, or 3 median
+        periods of the readings when that is more (a topic recorded at a low rate)."""
+        return max(floor, 3.0 * self._period_s)
+
+    @cached_property
+    def _period_s(self) -> float:
+        """The median interval between readings (s; 0 with fewer than two)."""
+        return float(np.median(np.diff(self.stamps))) / 1e9 if len(self.stamps) > 1 else 0.0
 
     def gap_s(self, t_ns: int) -> float:
         """|t_ns - the nearest reading's stamp| in seconds (inf if none)."""
