@@ -204,7 +204,8 @@ def _causal_cell(args) -> float | None:
     if not csv.is_file() or any(d.is_file() and d.stat().st_mtime > csv.stat().st_mtime for d in newer):
         cell = Cell(runs.name, path, "batch", OBSERVATION, str(out), options)
         try:
-            track(path, out, cell.track_options(), progress=False, quiet=True, max_frames=at + 1)
+            track(path, out, cell.track_options(), progress=False, quiet=True, max_frames=at + 1,
+                  topics=cell.topics())
         except Exception as exc:  # noqa: BLE001 (a failed cell is counted, as the study counts its own)
             print(f"causal bound: {runs.name} to frame {at}: {exc}", file=sys.stderr)
             return None

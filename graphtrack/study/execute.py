@@ -154,10 +154,12 @@ def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[
 RAY_CONNECT_TIMEOUT_S = 10.0  #: a cluster address that does not answer within this is refused
 
 
-def _probe(address: str) -> None:
-    """InputError unless ``address`` (``host:port`` or ``ray://host:port``) accepts a TCP
-    connection within RAY_CONNECT_TIMEOUT_S: Ray itself retries an unreachable address for
-    many minutes."""
+def check_ray_address(address: str) -> None:
+    """InputError unless ``address`` is 'local', 'auto' or a cluster address (``host:port``
+    or ``ray://host:port``) that accepts a TCP connection within RAY_CONNECT_TIMEOUT_S: Ray
+    itself retries an unreachable address for many minutes. Needs no Ray installed."""
+    if address in ("local", "auto"):
+        return
     m = re.fullmatch(r"(?:\w+://)?\[?([^\]\s]+?)\]?:(\d+)/?", address)
     if not m:
         raise InputError(f"--ray {address}: expected 'local', 'auto' or a cluster address HOST:PORT "
@@ -188,8 +190,7 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
                     **{v: "1" for v in THREAD_ENV}}}
                 ray.init(num_cpus=workers or None, **kw)
             else:
-                if address != "auto":
-                    _probe(address)
+                check_ray_address(address)
                 ray.init(address=address, **kw)
         except InputError:
             raise

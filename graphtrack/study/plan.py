@@ -40,7 +40,7 @@ from graphtrack.detect.observe import SEEDED_MODELS
 from graphtrack.errors import InputError
 from graphtrack.estimate import estimator_class
 from graphtrack.study.cells import CELL_OPTION_DEFAULTS, CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions, view_flags
-from graphtrack.study.execute import run_local, run_ray
+from graphtrack.study.execute import check_ray_address, run_local, run_ray
 from graphtrack.study.report import is_done, plot_accumulated, write_tables
 
 # -- which combinations exist -----------------------------------------------------------
@@ -110,6 +110,20 @@ def plan(paths: list[str], options: StudyOptions, out: Path,
 
 
 # -- study.json: one set of options per folder ------------------------------------------
+def _check_same_options(out: Path, stored: dict, options: StudyOptions) -> None:
+    """InputError when ``out`` holds finished cells made with other options than these
+    (``stored``: study.json's; an option it predates holds its default). A folder with no
+    finished cell takes the new options (e.g. a mistyped topic corrected)."""
+    old, new = {**CELL_OPTION_DEFAULTS, **stored}, options.cell_options()
+    diff = [k for k in CELL_OPTIONS if old.get(k) != new[k]]
+    if not diff or not any((out / "runs").glob("*/*/done.json")):
+        return
+    what = ", ".join(f"{k}: {old.get(k)!r} there{'' if k in stored else ' (the default: the folder predates it)'}, "
+                     f"{new[k]!r} now" for k in diff)
+    raise InputError(f"{out}: holds a study made with other options ({what}); "
+                     f"use another --out, or the same options to continue it")
+
+
 def check_study_folder(out: Path, options: StudyOptions, cells: list[Cell]) -> None:
     """Create or check DIR/study.json; refuse a folder made with other options."""
     doc_path = out / "study.json"
@@ -119,14 +133,7 @@ def check_study_folder(out: Path, options: StudyOptions, cells: list[Cell]) -> N
             old = json.loads(doc_path.read_text())
         except (OSError, json.JSONDecodeError):
             raise InputError(f"{doc_path}: unreadable study.json; use another --out or remove it") from None
-        old_opts = old.get("options", {})
-        old_opts = {**CELL_OPTION_DEFAULTS, **old_opts}
-        diff = [k for k in CELL_OPTIONS if old_opts.get(k) != options.cell_options()[k]]
-        if diff:
-            what = ", ".join(f"{k}: {old_opts.get(k)!r} there, {options.cell_options()[k]!r} now"
-                             for k in diff)
-            raise InputError(f"{out}: holds a study made with other options ({what}); "
-                             f"use another --out, or the same options to continue it")
+        _check_same_options(out, old.get("options", {}), options)
         old_recs = old.get("recordings", {})
         clash = [n for n, p in recordings.items() if n in old_recs and old_recs[n] != p]
         if clash:
@@ -165,6 +172,8 @@ def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers:
         raise InputError("--workers must be at least 1")
     if options.repeats < 1:
         raise InputError("--repeats must be at least 1")
+    if ray_address is not None:
+        check_ray_address(ray_address)   # before study.json: an unreachable cluster changes nothing
     cells, notes = plan([str(p) for p in paths], options, out, names)
     if not cells:
         raise InputError("no estimator/observation combination to run")
@@ -173,7 +182,7 @@ def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers:
         for c in cells:
             c.video = bool(video(c))
     todo = [c for c in cells if not is_done(c) or (c.video and not (Path(c.out) / "overlay.mp4").is_file())]
-    if ray_address:
+    if ray_address is not None:
         run_ray(todo, ray_address, workers if workers > 1 else None, quiet) if todo else []
     else:
         run_local(todo, workers, quiet)
