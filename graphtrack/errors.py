@@ -50,3 +50,13 @@ def is_number(v) -> bool:
     if isinstance(v, int):
         return abs(v) <= 1e300
     return math.isfinite(v)
+
+
+MAX_SEED = 2**32 - 1   #: the largest seed (numpy's and torch's generators both take 0..2**32-1 as given)
+
+
+def check_seed(seed) -> int:
+    """``seed`` as an int in 0..MAX_SEED; InputError naming --seed otherwise."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise InputError(f"--seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
+    return seed

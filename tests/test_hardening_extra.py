@@ -112,7 +112,7 @@ EXIT2 = [
      r"recording\.bag: no left image topic \(/nope\)"),
     ("arm_not_recorded", "bag", keep, ("--arm", "PSM2"), r"no messages on the joint topic of PSM2.*--arm PSM1"),
     ("max_frames_0", "folder", keep, ("--max-frames", "0"), r"--max-frames must be at least 1"),
-    ("seed_negative", "folder", keep, ("--seed", "-1"), r"--seed must be a non-negative integer"),
+    ("seed_negative", "folder", keep, ("--seed", "-1"), r"--seed must be an integer in 0\.\.4294967295"),
     ("lag_nan", "folder", keep, ("--lag", "nan"), r"--lag must be a finite number"),
     ("beta_above_1", "folder", keep, ("--beta", "5"), r"--beta must be in \[0, 1\]"),
     ("alpha_inf", "folder", keep, ("--alpha", "inf"), r"--alpha must be a positive number"),

@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 from graphtrack.commands.common import HelpFormatter, add_threads_argument, output_path
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, check_seed
 
 
 def add_parser(sub):
@@ -75,8 +75,7 @@ def _check_arguments(args) -> None:
         raise InputError("--batch must be positive")
     if not args.lr > 0:
         raise InputError("--lr must be positive")
-    if args.seed < 0:
-        raise InputError(f"--seed must be a non-negative integer, got {args.seed}")
+    check_seed(args.seed)
     if args.init is not None and not Path(args.init).is_file():
         raise InputError(f"{args.init}: weights file not found")
     _check_writable(Path(args.out), "--out")

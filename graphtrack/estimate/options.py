@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, check_seed
 
 PARTICLES = 1000      #: particle filter: particles
 MAX_PARTICLES = 100_000  #: particle filter: the most particles accepted (about 0.2 s a frame, a few hundred MB)
@@ -46,8 +46,7 @@ class EstimatorOptions:
 
     def check(self) -> EstimatorOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
-        if self.seed < 0:
-            raise InputError(f"--seed must be a non-negative integer, got {self.seed}")
+        check_seed(self.seed)
         if not 0 < self.particles <= MAX_PARTICLES:
             raise InputError(f"--particles must be between 1 and {MAX_PARTICLES}, got {self.particles}")
         if self.lag <= 0:

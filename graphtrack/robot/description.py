@@ -302,14 +302,23 @@ def save_robot_json(path: str | Path, robot: RobotDescription) -> None:
     Path(path).write_text(json.dumps(robot.to_json(), indent=2))
 
 
+def _json_kind(v) -> str:
+    """The JSON name of a parsed value's type ("an array", "a string", "null", ...)."""
+    if v is None:
+        return "null"
+    if isinstance(v, bool):
+        return "a boolean"
+    return {list: "an array", str: "a string", int: "a number", float: "a number"}.get(type(v), "an object")
+
+
 def _dvrk_dh(path: Path) -> tuple[list[DHJoint], dict]:
     doc = _read_json(path)
     d = _Doc(path)
     if not isinstance(doc, dict):
-        d.fail("document", f"expected a JSON object (a dVRK configuration file), got a {type(doc).__name__}")
+        d.fail("document", f"expected a JSON object (a dVRK configuration file), got {_json_kind(doc)}")
     dh = doc.get("DH")
     if not isinstance(dh, dict):
-        d.fail("DH", "missing object")
+        d.fail("DH", "missing" if dh is None else f"expected an object, got {_json_kind(dh)}")
     conv = dh.get("convention", "modified")
     if conv != "modified":
         d.fail("DH.convention", f"only modified DH is supported, got {conv!r}")
@@ -329,17 +338,16 @@ def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
     tool file supplies the rest: its 3 joints, or the last 3 of a whole-PSM file's 6
     (any other count is refused). The dVRK files hold no visual features:
     ``features_from`` (e.g. a robot.json) supplies them. The jaw exists when
-    the tool file says so (a ``jaw`` section or a 7th joint) unless
-    ``has_gripper`` overrides.
+    the tool file has a ``jaw`` section unless ``has_gripper`` overrides.
     """
     arm, _ = _dvrk_dh(Path(arm_file))
     tool, tool_doc = _dvrk_dh(Path(tool_file))
-    if len(arm) < 3:
-        raise InputError(f"{arm_file}: DH: expected at least 3 arm joints, got {len(arm)}")
+    if len(arm) != 3 and len(arm) < 6:
+        raise InputError(f"{arm_file}: DH: expected the arm's 3 joints or a whole PSM's 6 or more, got {len(arm)}")
     if len(tool) not in (3, 6):
         raise InputError(f"{tool_file}: DH: expected the tool's 3 joints (4-6) or a whole PSM's 6, got {len(tool)}")
     tool = tool[-3:]
-    grip = has_gripper if has_gripper is not None else bool("jaw" in tool_doc or len(tool) > 3)
+    grip = has_gripper if has_gripper is not None else "jaw" in tool_doc
     base = features_from
     if base is None:
         return RobotDescription(arm[:3] + tool, grip)

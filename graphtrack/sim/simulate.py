@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, check_seed
 from graphtrack.geometry.camera import Calibration, save_calibration
 from graphtrack.geometry.se3 import matrix_to_bw, matrix_to_quaternion, transform_points
 from graphtrack.io.bag_write import write_bag
@@ -266,8 +266,7 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
         raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
-    if seed < 0:
-        raise InputError(f"--seed must be a non-negative integer, got {seed}")
+    check_seed(seed)
     sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
     out = Path(out_dir)
     _prepare_out(out)

@@ -111,6 +111,9 @@ def save_cache(path, images: np.ndarray, segments: np.ndarray) -> None:
         raise InputError(f"{path}: cannot write the --data cache ({e.strerror or e})") from None
 
 
+MIN_CACHE_SIZE = 16   #: px, the smallest image side of a training cache (the net downsamples by 4)
+
+
 def load_cache(path) -> tuple[np.ndarray, np.ndarray]:
     """(images, segments) of a cache written by :func:`save_cache`; InputError naming the
     file when it is not such a cache: not an .npz, a key missing, or images that are not
@@ -128,9 +131,12 @@ def load_cache(path) -> tuple[np.ndarray, np.ndarray]:
         raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
     except Exception as e:   # numpy raises ValueError / BadZipFile / EOFError for a file that is not an .npz
         raise InputError(f"{path}: not a readable .npz training-data cache ({type(e).__name__})") from None
-    if images.dtype != np.uint8 or images.ndim != 4 or images.shape[3] != 3 or len(images) == 0:
-        raise InputError(f"{path}: 'images' must be (N, h, w, 3) uint8 with N >= 1, "
+    if (images.dtype != np.uint8 or images.ndim != 4 or images.shape[3] != 3 or len(images) == 0
+            or min(images.shape[1:3]) < MIN_CACHE_SIZE):
+        raise InputError(f"{path}: 'images' must be (N, h, w, 3) uint8 with N >= 1 and h, w >= {MIN_CACHE_SIZE}, "
                          f"got {images.shape} {images.dtype}")
-    if segments.ndim != 3 or segments.shape[0] != len(images) or segments.shape[2] != 4:
-        raise InputError(f"{path}: 'segments' must be (N, S, 4) with N = {len(images)} images, got {segments.shape}")
+    if (segments.dtype.kind not in "fiu" or segments.ndim != 3 or segments.shape[0] != len(images)
+            or segments.shape[1] < 1 or segments.shape[2] != 4):
+        raise InputError(f"{path}: 'segments' must be numbers (N, S, 4) with N = {len(images)} images and "
+                         f"S >= 1, got {segments.shape} {segments.dtype}")
     return images, segments.astype(np.float32)
