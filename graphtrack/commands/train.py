@@ -40,7 +40,9 @@ def add_parser(sub):
     p.add_argument("--lr", type=float, default=3e-3, help="peak learning rate (cosine decay to 1e-5)")
     p.add_argument("--init", metavar="WEIGHTS", help="fine-tune from this weights file (default: from scratch)")
     add_threads_argument(p)
-    p.add_argument("--data", metavar="NPZ", help="reuse / write the simulated frames in this .npz cache (default: none)")
+    p.add_argument("--data", metavar="NPZ",
+                   help="the simulated frames' .npz cache: written when missing, else reused as it is "
+                        "(its frames, whatever --frames says) (default: none)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -51,6 +53,8 @@ def command(args) -> str:
              f"--seed {args.seed} --batch {args.batch} --lr {args.lr:g} --device {args.device}"]
     if args.init is not None:
         parts.append(f"--init {args.init}")
+    if args.data is not None:
+        parts.append(f"--data {args.data}")
     return " ".join(parts)
 
 
