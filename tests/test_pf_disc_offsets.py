@@ -6,6 +6,8 @@ import numpy as np
 from graphtrack.detect.base import Observation
 from graphtrack.estimate.particle_filter import ParticleFilter
 from graphtrack.estimate.pf.disc_offsets import DiscOffsets
+from graphtrack.estimate.pf.projection import frame_geometry, project
+from graphtrack.io.context import TrackingContext
 from graphtrack.robot.features import base_features
 from graphtrack.sim.synthetic import Scene, joint_trajectory, make_scene, observe, stereo_sequence
 
@@ -106,3 +108,38 @@ def test_unpaired_detections_and_point_markers_stay():
     assert plain.centre_equivalent(obs, Q[0], E, SCENE.camera.K, gate=20.0) is obs
     empty = Observation("line-intensities")
     assert DiscOffsets(SCENE.robot).centre_equivalent(empty, Q[0], E, SCENE.camera.K, gate=20.0) is empty
+
+
+def test_a_point_marker_the_likelihood_does_not_see_takes_no_detection():
+    """A point marker on the shaft's far side at the estimate is invisible to the
+    likelihood (``project``'s visible), so it takes part in no pairing: a detection at its
+    projection (a highlight, say) pairs with the nearest disc instead and moves by that
+    disc's offset, as any detection within the gate would."""
+    m = 1   # on the far side throughout this trajectory
+    robot = dataclasses.replace(SCENE.robot, point_features=[
+        dataclasses.replace(p, radius=0.0) if k == m else p for k, p in enumerate(SCENE.robot.point_features)])
+    E = SCENE.true_E(X_TRUE)
+    discs = DiscOffsets(robot)
+    pf = ParticleFilter(TrackingContext(robot, SCENE.camera, SCENE.E0), particles=16, seed=0, search=False)
+    checked = 0
+    for t in range(0, 60, 5):
+        centre, facing = _centres(Q[t], E, robot=robot)
+        c, delta = discs.offsets(discs.link_poses(Q[t]), E, SCENE.camera.K)
+        usable = [k for k in range(len(c)) if k != m and np.all(np.isfinite(delta[k]))]
+        if facing[m] or not usable:
+            continue
+        obs = Observation("line-intensities", markers=centre[m:m + 1].copy())
+        seen = np.ones(len(centre), bool)
+        seen[m] = False
+        kept = discs.centre_equivalent(obs, Q[t], E, SCENE.camera.K, gate=1000.0)          # all seen
+        np.testing.assert_array_equal(kept.markers, centre[m:m + 1])    # paired with the point: stays
+        moved = discs.centre_equivalent(obs, Q[t], E, SCENE.camera.K, gate=1000.0, seen=seen)
+        k = usable[int(np.argmin(np.linalg.norm(c[usable] - centre[m], axis=1)))]
+        np.testing.assert_allclose(moved.markers, centre[m:m + 1] - delta[k], atol=1e-9)
+        # the filter passes the likelihood's visibility, which is the geometric facing test
+        g = frame_geometry(robot, Q[t], SCENE.E0)
+        visible = project(g, SCENE.camera.K, np.zeros((1, 6)), E @ np.linalg.inv(SCENE.E0)).visible[:, 0]
+        np.testing.assert_array_equal(visible, facing)
+        np.testing.assert_allclose(pf._disc_centres(Q[t], E, obs, None)[0].markers, moved.markers, atol=1e-12)
+        checked += 1
+    assert checked >= 3, checked

@@ -310,11 +310,13 @@ class ParticleFilter:
         if self.discs is None:
             return observation, right
         E_hat = self.E if E_hat is None else E_hat
-        links = self._frame_geometry(q).marker_links
-        observation = self.discs.centre_equivalent(observation, q, E_hat, self.K, self.marker_gate, links)
+        g, C, zero = self._frame_geometry(q), E_hat @ np.linalg.inv(self.E0), np.zeros((1, 6))
+        observation = self.discs.centre_equivalent(observation, q, E_hat, self.K, self.marker_gate, g.marker_links,
+                                                   project(g, self.K, zero, C).visible[:, 0])
         if right is not None and self.ctx.stereo:
-            right = self.discs.centre_equivalent(right, q, self.ctx.right_T_left @ E_hat, self.ctx.right.K,
-                                                 self.marker_gate, links)
+            C, K2 = self.ctx.right_T_left @ C, self.ctx.right.K
+            right = self.discs.centre_equivalent(right, q, self.ctx.right_T_left @ E_hat, K2, self.marker_gate,
+                                                 g.marker_links, project(g, K2, zero, C).visible[:, 0])
         return observation, right
 
     def _moments(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

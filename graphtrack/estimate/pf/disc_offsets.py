@@ -14,8 +14,9 @@ the filter's estimate E_hat, and each detection u_j paired with marker k (Hungar
 :func:`factors.marker.associate`, at the centroids c_k(E_hat), within the marker
 gate) is replaced by u_j - delta_k: every hypothesis is then scored against where its
 point model expects the disc's centre. A disc hidden at E_hat (every sample facing
-away) and a detection paired with none are left as they are; a detection paired with a
-point marker (delta = 0) takes part in the pairing and stays where it is.
+away) and a detection paired with none are left as they are; a point marker (delta =
+0) takes part in the pairing, so that its detection stays where it is, unless the
+likelihood does not see it at E_hat (``seen``: e.g. on the shaft's far side).
 
 The discs are sampled once (:func:`graphtrack.robot.features.marker_discs`), in the
 frames of the links they are painted on; a frame moves them by its links' poses.
@@ -51,6 +52,7 @@ class DiscOffsets:
         self.X = np.einsum("kij,ksj->ksi", R, discs[0]) + t[:, None, :]
         self.N = np.einsum("kij,ksj->ksi", R, discs[1])
         self.P = np.einsum("kij,kj->ki", R, np.asarray(feats.points, float).reshape(-1, 3)) + t
+        self.point = ~np.any(self.N != 0, axis=(1, 2))      # (M,) a point marker: no disc
         self._poses = (None, None)
 
     def link_poses(self, q: np.ndarray) -> np.ndarray:
@@ -73,20 +75,23 @@ class DiscOffsets:
         P = (np.matmul(self.P[:, None, :], Rt) + t)[:, 0]
         z = np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)
         centre = np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], -1)
-        point = ~np.any(self.N != 0, axis=(1, 2))          # a point marker: its detection is its centre
-        c[point] = centre[point]
+        c[self.point] = centre[self.point]                 # a point marker: its detection is its centre
         return c, c - centre
 
     def centre_equivalent(self, observation, q: np.ndarray, T: np.ndarray, K: np.ndarray, gate: float,
-                          links: np.ndarray | None = None):
+                          links: np.ndarray | None = None, seen: np.ndarray | None = None):
         """``observation`` with each paired detection moved by -delta_k (module doc) at
         reading q for the camera T (camera-from-base, 4x4), K; the same object when
         nothing moves. ``links``: the markers' link poses at q when the caller has them
-        (:meth:`link_poses`)."""
+        (:meth:`link_poses`); ``seen`` (M,): the markers the likelihood sees at T (the
+        particle filter's :func:`graphtrack.estimate.pf.projection.project` ``visible``),
+        None: all; a point marker it does not see takes no detection."""
         if observation is None or not self.available or len(observation.markers) == 0:
             return observation
         c, delta = self.offsets(self.link_poses(q) if links is None else links, T, K)
         usable = np.all(np.isfinite(delta), axis=1)
+        if seen is not None:
+            usable &= seen | ~self.point
         if not usable.any():
             return observation
         det = np.asarray(observation.markers, float)
