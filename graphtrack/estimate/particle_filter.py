@@ -310,13 +310,17 @@ class ParticleFilter:
         if self.discs is None:
             return observation, right
         E_hat = self.E if E_hat is None else E_hat
-        g, C, zero = self._frame_geometry(q), E_hat @ np.linalg.inv(self.E0), np.zeros((1, 6))
+        g, C = self._frame_geometry(q), E_hat @ np.linalg.inv(self.E0)
+
+        def seen(K, C):   # the markers the likelihood sees at E_hat: needed only for point markers among discs
+            return project(g, K, np.zeros((1, 6)), C).visible[:, 0] if self.discs.point.any() else None
+
         observation = self.discs.centre_equivalent(observation, q, E_hat, self.K, self.marker_gate, g.marker_links,
-                                                   project(g, self.K, zero, C).visible[:, 0])
+                                                   seen(self.K, C))
         if right is not None and self.ctx.stereo:
             C, K2 = self.ctx.right_T_left @ C, self.ctx.right.K
             right = self.discs.centre_equivalent(right, q, self.ctx.right_T_left @ E_hat, K2, self.marker_gate,
-                                                 g.marker_links, project(g, K2, zero, C).visible[:, 0])
+                                                 g.marker_links, seen(K2, C))
         return observation, right
 
     def _moments(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
