@@ -34,6 +34,7 @@ from graphtrack.detect.pixel_sets import endpoints_set, line_set
 from graphtrack.errors import FrameError, InputError
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.outdir import writable_dir
+from graphtrack.io.run_output import prepare_run_dir
 from graphtrack.io.recording import open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.video import StampedVideoWriter
@@ -70,17 +71,23 @@ def _row(index: int, d, shape, alpha: float, beta: float, ms: float) -> list:
     return row + [len(mk), ";".join(f"{x:.2f} {y:.2f}" for x, y in mk), _num(ms)]
 
 
+#: the files a detect run writes (another run's are refused unless --overwrite)
+DETECT_FILES = ("detections.csv", "detections_right.csv", "detections.mp4")
+
+
 def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), video: bool = False,
                      max_frames: int | None = None, quiet: bool = False,
-                     topics: TopicSelection = TopicSelection(), stereo: bool = True) -> dict:
+                     topics: TopicSelection = TopicSelection(), stereo: bool = True,
+                     overwrite: bool = False) -> dict:
     """Detect on every frame of a recording; write detections.csv (and detections.mp4).
     Of ``options`` it uses detector, weights, alpha and beta (at full size); ``topics``:
     the arm and bag topics to read (default: detected). A stereo recording (unless
     ``stereo`` is False, ``--mono``) also gets detections_right.csv, the same columns
-    for the right images (undistorted right pixels, gated through right_T_left . E_0)."""
+    for the right images (undistorted right pixels, gated through right_T_left . E_0).
+    ``out`` holding another run's files (DETECT_FILES) is refused unless ``overwrite``."""
     rec = open_recording(path, topics=topics)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
-    out = writable_dir(out)
+    out = writable_dir(prepare_run_dir(out, overwrite, DETECT_FILES))
     right_csv = None
     if stereo and rec.stereo:
         right_csv = (out / "detections_right.csv").open("w", newline="")
@@ -140,7 +147,7 @@ def run(args) -> int:
         raise InputError("--max-frames must be positive")
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
-                           topics=source_from_args(args), stereo=not args.mono)
+                           topics=source_from_args(args), stereo=not args.mono, overwrite=args.overwrite)
     if res["frames"] == res["frames_skipped"]:   # never exit 0 with nothing detected
         raise InputError(f"{args.sequence}: no frame could be detected on: {res['frames_skipped']} of "
                          f"{res['frames']} frames skipped (images missing or corrupt, or joints unusable); "
@@ -165,4 +172,6 @@ def add_parser(sub):
     p.add_argument("--mono", action="store_true",
                    help="left images only (default: also detections_right.csv when the recording has right images)")
     add_source_arguments(p)
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace another detect run's files in --out (refused otherwise)")
     p.set_defaults(func=run)

@@ -26,13 +26,14 @@ RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", 
              "trajectory.csv.tmp", "trajectory.tum.tmp", "metrics.json.tmp", "truth_errors.csv.tmp")
 
 
-def prepare_run_dir(out: str | Path, overwrite: bool = False) -> Path:
-    """Check ``out`` holds no other run's files; with ``overwrite`` delete them.
+def prepare_run_dir(out: str | Path, overwrite: bool = False, files=None) -> Path:
+    """Check ``out`` holds no other run's files (``files``, default RUN_FILES: those
+    ``track`` writes); with ``overwrite`` delete them.
 
     Raises InputError ``"<out>: holds another run's files (...); use --overwrite ..."``.
     """
     out = Path(out)
-    found = [n for n in RUN_FILES if (out / n).exists()] if out.is_dir() else []
+    found = [n for n in (RUN_FILES if files is None else files) if (out / n).exists()] if out.is_dir() else []
     if found and not overwrite:
         raise InputError(f"{out}: holds another run's files ({', '.join(found)}); use --overwrite to "
                          "replace them, or choose another --out")
