@@ -235,7 +235,10 @@ def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
     if not all(is_number(x) for x in v):
         raise InputError(f"{path}: key '{key}' holds NaN, infinite or out-of-range values")
     a = np.asarray(v, dtype=float)
-    if a.size != n and not (key.startswith("D") and a.size in (4, 5, 8)):
+    if key.startswith("D") and a.size not in (4, 5, 8):
+        raise InputError(f"{path}: key '{key}' has {a.size} values, expected 4, 5 or 8 "
+                         "(OpenCV's k1 k2 p1 p2 [k3 [k4 k5 k6]])")
+    if a.size != n and not key.startswith("D"):
         raise InputError(f"{path}: key '{key}' has {a.size} values, expected {n}")
     if not np.all(np.isfinite(a)):
         raise InputError(f"{path}: key '{key}' holds NaN or infinite values")
@@ -288,12 +291,16 @@ def load_calibration(path: str | Path) -> Calibration:
         D = _matrix(doc, dk, 5, path)
         if np.any(np.abs(D) > 1e4):
             raise InputError(f"{path}: key '{dk}' holds a coefficient beyond 1e4")
+        if np.any(D[5:] != 0):
+            raise InputError(f"{path}: key '{dk}': the rational model's k4 k5 k6 ({', '.join(f'{v:g}' for v in D[5:])}) "
+                             "are not supported: graphtrack's camera model is k1 k2 p1 p2 k3 (give 5 values, or "
+                             "k4 k5 k6 = 0)")
         D5 = np.zeros(5)
         D5[: min(5, D.size)] = D[:5]
         return Camera(K, D5, h, w)
 
     left = cam("K1", "D1")
-    if "K2" in doc:
+    if any(k in doc for k in ("K2", "D2", "R", "T")):   # one stereo key: all four are needed
         right = cam("K2", "D2")
         R = _matrix(doc, "R", 9, path).reshape(3, 3)
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
