@@ -313,3 +313,22 @@ def _consistency_notes(rec: Recording) -> list[str]:
         notes.append(f"{right_dir}: not a folder, so the recording has no right images; "
                      "tracking the left image only")
     return notes
+
+
+def fingerprint(path: str | Path) -> dict[str, list[int]]:
+    """What identifies a recording folder's content cheaply, to tell a changed recording
+    from the one a result was computed on: per top-level file its [size, mtime ns], per
+    top-level folder (frames/, frames_right/, a ROS 2 bag) the count, total size and
+    latest mtime of its files. No file is read."""
+    out: dict[str, list[int]] = {}
+    for p in sorted(Path(path).iterdir()):
+        try:
+            if p.is_file():
+                st = p.stat()
+                out[p.name] = [st.st_size, st.st_mtime_ns]
+            elif p.is_dir():
+                sts = [q.stat() for q in p.iterdir() if q.is_file()]
+                out[p.name + "/"] = [len(sts), sum(s.st_size for s in sts), max((s.st_mtime_ns for s in sts), default=0)]
+        except OSError:
+            out[p.name] = [-1, -1]
+    return out

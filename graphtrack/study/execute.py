@@ -28,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from graphtrack.errors import InputError
+from graphtrack.io.recording import fingerprint
 from graphtrack.io.run_output import require_tool_in_front, require_tracked
 from graphtrack.study.cells import Cell
 from graphtrack.threads import THREAD_ENV, limit_threads
@@ -58,7 +59,8 @@ def _json_safe(x):
 def _finish(cell: Cell, result: dict, seconds: float) -> dict:
     out = Path(cell.out)
     (out / "error.json").unlink(missing_ok=True)
-    doc = {"cell": asdict(cell), "options": cell.options, "seconds": seconds, "result": _json_safe(result)}
+    doc = {"cell": asdict(cell), "options": cell.options, "seconds": seconds, "result": _json_safe(result),
+           "recording": fingerprint(cell.path)}
     tmp = out / "done.json.tmp"
     tmp.write_text(json.dumps(doc, indent=2))
     os.replace(tmp, out / "done.json")  # last: marks the cell complete

@@ -165,9 +165,13 @@ def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers:
     out = Path(out)
     if not paths:
         raise InputError("no recordings given")
+    seen: dict[Path, str] = {}
     for p in paths:
         if not Path(p).exists():
             raise InputError(f"{p}: recording not found")
+        if Path(p).resolve() in seen:
+            raise InputError(f"{p}: the same recording as {seen[Path(p).resolve()]}, given twice")
+        seen[Path(p).resolve()] = str(p)
     if workers < 1:
         raise InputError("--workers must be at least 1")
     if options.repeats < 1:

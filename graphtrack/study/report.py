@@ -12,11 +12,15 @@ from pathlib import Path
 from graphtrack.errors import InputError
 from graphtrack.eval.metrics import accumulated_error, tip_error_series
 from graphtrack.io.labels import read_labels
+from graphtrack.io.recording import fingerprint
 from graphtrack.io.trajectory import read_trajectory
 from graphtrack.study.cells import CELL_OPTION_DEFAULTS, Cell
 
 
 def is_done(cell: Cell) -> bool:
+    """The cell holds a result made with its options from its recording as it is now
+    (:func:`graphtrack.io.recording.fingerprint`; a done.json from before fingerprints is
+    taken as it is)."""
     p = Path(cell.out) / "done.json"
     if not p.is_file():
         return False
@@ -26,6 +30,8 @@ def is_done(cell: Cell) -> bool:
         return False
     # a cell done before an option existed holds that option's default
     stored, wanted = ({**CELL_OPTION_DEFAULTS, **(o or {})} for o in (doc.get("options"), cell.options))
+    if "recording" in doc and Path(cell.path).is_dir() and doc["recording"] != fingerprint(cell.path):
+        return False
     return stored == wanted and (Path(cell.out) / "metrics.json").is_file()
 
 
