@@ -64,6 +64,14 @@ def _threads_in(argv: list[str]) -> int:
     return DEFAULT_THREADS
 
 
+def _end_progress_bars() -> None:
+    """Close any progress bar still open, so that a message starts on its own line."""
+    from tqdm import tqdm
+
+    for bar in list(getattr(tqdm, "_instances", ())):
+        bar.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     set_thread_environment(_threads_in(argv))
@@ -77,6 +85,7 @@ def main(argv: list[str] | None = None) -> int:
             limit_threads(threads_from_args(args))
         return int(args.func(args) or 0)
     except InputError as e:
+        _end_progress_bars()
         print(f"graphtrack: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -85,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # noqa: BLE001 - last resort: a bug, not bad input
         if os.environ.get("GRAPHTRACK_DEBUG"):
             raise
+        _end_progress_bars()
         where = e.__traceback__
         while where is not None and where.tb_next is not None:
             where = where.tb_next

@@ -21,6 +21,7 @@ from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
 from graphtrack.errors import InputError, check_seed
 from graphtrack.io.run_output import prepare_run_dir, require_tool_in_front, require_tracked
 from graphtrack.track import TrackOptions, track
+from graphtrack.track.runlog import warn
 
 FORMATTER = HelpFormatter
 
@@ -118,10 +119,28 @@ def options_from_args(args) -> TrackOptions:
                         tip_feature=args.tip_feature, stereo=not args.mono)
 
 
+#: option (argparse dest) -> the estimators it applies to
+ESTIMATOR_ONLY = {"particles": ("pf",), "lag": ("smoother",), "smoother": ("smoother",),
+                  "no_search": ("pf", "smoother"), "no_edge_bias": ("smoother", "batch")}
+
+
+def unused_options(args) -> list[str]:
+    """The options given on this command line (other than their defaults) that the chosen
+    estimator does not take: one warning line each, instead of silence."""
+    d = EstimatorOptions()
+    defaults = {"particles": d.particles, "lag": d.lag, "smoother": d.smoother, "no_search": False,
+                "no_edge_bias": False}
+    return [f"warning: --{k.replace('_', '-')} applies to {' and '.join(e)}, not to {args.estimator}: ignored"
+            for k, e in ESTIMATOR_ONLY.items()
+            if hasattr(args, k) and getattr(args, k) != defaults[k] and args.estimator not in e]
+
+
 def run(args) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise InputError("--max-frames must be at least 1")
     options = options_from_args(args)
+    for line in unused_options(args):
+        warn(line, args.quiet)
     prepare_run_dir(args.out, overwrite=args.overwrite)
     result = track(args.sequence, args.out, options, video=args.video,
                    progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,

@@ -237,6 +237,9 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
         _check_link(d, p.link, n_links, "link")
         if not 0 <= p.radius <= 0.01:
             d.fail("radius", "must be in [0, 0.01] (metres: a painted marker's disc; 0: a point)")
+        if not p.name.strip() or any(q.name == p.name for q in points):
+            d.fail("name", f"{p.name!r} is empty or names an earlier point feature too (--tip-feature "
+                           "and the outputs name features by it)")
         points.append(p)
     shafts = []
     for i, o in enumerate(d.items(doc, "shaft_features")):

@@ -41,7 +41,7 @@ def _evaluated_tip(rec: Recording, tip_feature: str | None):
     """The robot with the point that is evaluated as the tool tip (format doc: robot.json's
     ``tool_tip``; when it is missing, evaluation must be told which point feature to use)."""
     robot = rec.robot
-    if tip_feature:
+    if tip_feature is not None:
         names = {p.name: p for p in robot.point_features}
         if tip_feature not in names:
             raise InputError(f"--tip-feature: {rec.path / 'robot.json'} has no point feature {tip_feature!r} "
@@ -59,7 +59,8 @@ def _open(path: str | Path, options: TrackOptions, quiet: bool,
     rec = open_recording(path, topics=topics)
     if rec.robot.has_gripper and not rec.has_jaw:
         where = (f"no messages on {rec.source.jaw_topic}; name the jaw topic with --jaw-topic"
-                 if isinstance(getattr(rec.source, "jaw_topic", None), str) else "joints.csv has no 'jaw' column")
+                 if isinstance(getattr(rec.source, "jaw_topic", None), str)
+                 else "joints.csv's 'jaw' column holds no finite value")
         raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
                          f"({where}); the tool tip would be wrong without them")
     for w in rec.warnings:
@@ -140,7 +141,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             run.informative.append(obs is not None and (obs.has_shaft or len(obs.markers) > 0))
         _refine(pipe, run, writer, extra)
     if ctx.stereo and rec.right_skip_warning:   # counted in metrics.json's right_skipped_reasons
-        warn(f"warning: {rec.right_skip_warning}", quiet)
+        every = " (every frame: the run was mono)" if run.frames and pipe.left_only >= len(run.frames) else ""
+        warn(f"warning: {rec.right_skip_warning}{every}", quiet)
     wall = time.perf_counter() - t_wall
     if bar is not None:
         bar.close()
@@ -170,7 +172,8 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
               "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values())),
               "frames_total": run.read, "skip_examples": run.skipped.examples}
     if rec.stereo:
-        result.update(stereo=bool(ctx.stereo), frames_left_only=int(left_only),
+        # both images used in at least one frame (not when every right image was unusable)
+        result.update(stereo=bool(ctx.stereo) and left_only < len(run.frames), frames_left_only=int(left_only),
                       right_skipped_reasons={k: int(v) for k, v in rec.right_skips.items()})
     tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
     if rec.robot.tool_tip is not None:   # where the estimates put the tip (require_tool_in_front)
