@@ -319,3 +319,105 @@ os.write(2, b"fd 2 restored\n")
 """
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert p.returncode == 0 and p.stderr == "fd 2 restored\n", p.stderr
+
+
+def test_compare_recomputes_a_cell_whose_recording_changed(folder_rec, tmp_path, capsys):
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(folder_rec, rec)
+    args = ["compare", rec, "--out", tmp_path / "study", "--estimators", "kinematics"]
+
+    def ran() -> str:
+        code = main([str(a) for a in args])
+        assert code == 0
+        return next(ln for ln in capsys.readouterr().out.splitlines() if "cells computed" in ln)
+
+    assert ran().startswith("1 cells computed, 0 reused")
+    assert ran().startswith("0 cells computed, 1 reused")       # nothing changed: reused
+    joints = (rec / "joints.csv").read_text().splitlines()
+    head, row = joints[0], joints[1].split(",")
+    row[2] = repr(float(row[2]) + 0.01)                           # one joint reading edited in place
+    (rec / "joints.csv").write_text("\n".join([head, ",".join(row)] + joints[2:]) + "\n")
+    assert ran().startswith("1 cells computed, 0 reused")
+    code, err = run_cli(["compare", rec, rec, "--out", tmp_path / "s2"], capsys)
+    assert code == 2 and "given twice" in error_line(err)
+
+
+def test_calibration_stereo_keys_and_distortion_models(tmp_path):
+    import yaml
+
+    from graphtrack.geometry.camera import load_calibration
+
+    base = {"ImageSize": [48, 64], "K1": [50.0, 0, 32, 0, 50.0, 24, 0, 0, 1], "D1": [0.1, 0.01, 0, 0, 0],
+            "D2": [0, 0, 0, 0, 0], "R": [1, 0, 0, 0, 1, 0, 0, 0, 1], "T": [-5.0, 0, 0]}
+    path = tmp_path / "camera_calibration.yaml"
+    path.write_text(yaml.safe_dump(base))                          # D2, R, T without K2
+    with pytest.raises(InputError, match="missing key 'K2'"):
+        load_calibration(path)
+    mono = {k: base[k] for k in ("ImageSize", "K1")}
+    for D, ok in (([0.1, 0.01, 0, 0], True), ([0.1, 0.01, 0, 0, 0.001, 0, 0, 0], True),
+                  ([0.1, 0.01, 0, 0, 0.001, 0.2, 0, 0], False), ([0.1] * 12, False)):
+        path.write_text(yaml.safe_dump({**mono, "D1": D}))
+        if ok:   # OpenCV's model with the same coefficients is the oracle for the first five
+            np.testing.assert_array_equal(load_calibration(path).left.dist, (D + [0.0])[:5])
+        else:
+            with pytest.raises(InputError, match="k4 k5 k6|expected 4, 5 or 8"):
+                load_calibration(path)
+
+
+def test_robot_point_feature_names_are_unique_and_tip_feature_is_never_ignored(folder_rec, tmp_path, capsys):
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(folder_rec, rec)
+    doc = json.loads((rec / "robot.json").read_text())
+    code, err = run_cli(["track", rec, "--out", tmp_path / "o", "--estimator", "kinematics", "--quiet",
+                         "--tip-feature", ""], capsys)
+    assert code == 2 and "--tip-feature" in error_line(err) and "no point feature ''" in error_line(err)
+    doc["point_features"][1]["name"] = doc["point_features"][0]["name"]
+    (rec / "robot.json").write_text(json.dumps(doc))
+    code, err = run_cli(["track", rec, "--out", tmp_path / "o", "--estimator", "kinematics", "--quiet"], capsys)
+    assert code == 2 and "point_features[1]: name" in error_line(err)
+
+
+def test_detect_refuses_another_runs_files_and_a_folder_in_their_place(folder_rec, tmp_path, capsys):
+    out = tmp_path / "d"
+    args = ["detect", folder_rec, "--out", out, "--quiet", "--max-frames", "1"]
+    assert run_cli(args, capsys)[0] == 0
+    code, err = run_cli(args, capsys)
+    assert code == 2 and "holds another run's files (detections.csv)" in error_line(err)
+    assert run_cli(args + ["--overwrite"], capsys)[0] == 0
+    blocked = tmp_path / "b"
+    (blocked / "detections.csv").mkdir(parents=True)
+    code, err = run_cli(["detect", folder_rec, "--out", blocked, "--quiet", "--overwrite"], capsys)
+    assert code == 2 and "detections.csv: cannot remove" in error_line(err)
+
+
+def test_an_error_starts_on_its_own_line_after_a_progress_bar(folder_rec, tmp_path):
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(folder_rec, rec)
+    shutil.rmtree(rec / "frames")
+    (rec / "video.mp4").write_text("not a video")
+    p = subprocess.run([sys.executable, "-m", "graphtrack.cli", "track", str(rec), "--out", str(tmp_path / "o"),
+                        "--estimator", "kinematics"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2
+    lines = p.stderr.splitlines()
+    assert lines[-1].startswith("graphtrack: error: ") and "video.mp4" in lines[-1], p.stderr
+
+
+def test_options_the_chosen_estimator_does_not_take_are_named(tmp_path, capsys):
+    from graphtrack.cli import build_parser
+    from graphtrack.commands.track import unused_options
+
+    def lines(*argv):
+        return unused_options(build_parser().parse_args(["track", "SEQ", "--out", str(tmp_path), *argv]))
+
+    assert lines("--estimator", "pf", "--lag", "2") == [
+        "warning: --lag applies to smoother, not to pf: ignored"]
+    assert lines("--estimator", "batch", "--particles", "50", "--no-search") == [
+        "warning: --particles applies to pf, not to batch: ignored",
+        "warning: --no-search applies to pf and smoother, not to batch: ignored"]
+    assert lines("--estimator", "smoother", "--lag", "2", "--no-edge-bias") == []
