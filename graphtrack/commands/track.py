@@ -18,7 +18,7 @@ from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.estimate import ESTIMATORS
 from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
-from graphtrack.errors import InputError, check_seed
+from graphtrack.errors import InputError
 from graphtrack.io.run_output import prepare_run_dir, require_tool_in_front, require_tracked
 from graphtrack.track import TrackOptions, track
 from graphtrack.track.runlog import warn
@@ -101,8 +101,7 @@ def add_mono_argument(p) -> None:
 
 def estimator_options_from_args(args) -> EstimatorOptions:
     """The EstimatorOptions of a command line built with :func:`add_estimator_arguments`
-    (InputError for bad values)."""
-    check_seed(args.seed)
+    (InputError for bad values; the seed and the ranges: :meth:`EstimatorOptions.check`)."""
     if not math.isfinite(args.lag):
         raise InputError(f"--lag must be a finite number of seconds, got {args.lag!r}")
     return EstimatorOptions(particles=args.particles, seed=args.seed, lag=args.lag, smoother=args.smoother,

@@ -175,7 +175,8 @@ def check_ray_address(address: str) -> None:
 
 def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: bool = False) -> list[dict]:
     """Run the cells as Ray tasks. address: 'local' (start a local instance),
-    'auto' (the running cluster) or a cluster address (ray://host:10001, host:6379)."""
+    'auto' (the running cluster) or a cluster address (ray://host:10001, host:6379),
+    already checked by the caller (:func:`check_ray_address`, as ``run_study`` does)."""
     try:
         import ray  # optional and heavy: only a study run on Ray imports it
     except ImportError:
@@ -192,10 +193,7 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
                     **{v: "1" for v in THREAD_ENV}}}
                 ray.init(num_cpus=workers or None, **kw)
             else:
-                check_ray_address(address)
                 ray.init(address=address, **kw)
-        except InputError:
-            raise
         except Exception as e:  # noqa: BLE001 - connection errors of many kinds
             raise InputError(f"--ray {address}: cannot connect to Ray ({type(e).__name__}: {e})") from None
         started = True
