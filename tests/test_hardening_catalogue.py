@@ -193,8 +193,12 @@ EXIT2 = [
      r"no frame was tracked: 12 of 12 frames skipped \(image_size: 12\).*frame 0"),
     ("imagesize_swapped", "folder",
      lambda r: (edit_yaml(r / "camera_calibration.yaml", lambda d: d.update(ImageSize=[480, 270])),
-                (r / "labels.csv").unlink()),   # (with labels.csv: a label lies outside the 270-px-wide image)
-     (), r"no frame was tracked.*image_size"),
+                (r / "labels.csv").unlink()),   # (with labels.csv: the next case)
+     (), r"no frame was tracked.*image_size.*ImageSize says 270x480 \(width and height swapped there\?\)"),
+    ("imagesize_swapped_labels", "folder",
+     lambda r: edit_yaml(r / "camera_calibration.yaml", lambda d: d.update(ImageSize=[480, 270])),
+     (), r"labels\.csv: line \d+: .*outside the 270x480 image \(ImageSize in .*camera_calibration\.yaml\); "
+         r"it lies inside a 480x270 image: are width and height swapped"),
     ("imagesize_1e9", "folder",
      lambda r: edit_yaml(r / "camera_calibration.yaml", lambda d: d.update(ImageSize=[int(1e9), 480])),
      (), r"camera_calibration\.yaml: ImageSize"),

@@ -505,7 +505,7 @@ def test_folder_corrupt_and_missing_images(tmp_path):
     (seq / "frames" / "000002.png").unlink()
     rec = open_recording(seq, **NO_ROBOT)
     out = items(rec)
-    assert [getattr(f, "reason", None) for f in out] == [None, "corrupt_image", "corrupt_image", None]
+    assert [getattr(f, "reason", None) for f in out] == [None, "corrupt_image", "missing_image", None]
     assert "missing" in str(out[2]) and any("1 of 4 frames have no image" in w for w in rec.warnings)
 
 

@@ -79,6 +79,10 @@ def _parse_joints_csv(text: str, path: Path):
             np.array(jaw, dtype=float))
 
 
+#: the end of the message of a frame whose row in joints.csv has no image file
+MISSING = "(missing)"
+
+
 class FolderSource:
     """frames/ (or video.mp4) + joints.csv; validated at construction, streamed later.
 
@@ -143,7 +147,7 @@ class FolderSource:
             for k in range(start, self.n_images):
                 p = self._files.get(k)
                 if p is None:
-                    yield k, None, f"no image file frames/{k:06d}.* (missing)"
+                    yield k, None, f"no image file frames/{k:06d}.* {MISSING}"
                     continue
                 img, why = read_image_file(p)
                 yield k, img, why
@@ -185,7 +189,7 @@ class FolderSource:
         unread with ``right`` False."""
         for k, img, err in self._images(start):
             if err is not None:
-                yield FrameError(k, "corrupt_image", err)
+                yield FrameError(k, "missing_image" if err.endswith(MISSING) else "corrupt_image", err)
             else:
                 yield Frame(k, float(self._stamps[k]), img, self._joints[k].copy(), float(self._jaw[k]),
                             image_right=self._right(k) if right else None)

@@ -19,23 +19,26 @@ HEADER = ["frame", "u", "v"]
 BORDER_SLACK_PX = 10.0
 
 
-def read_labels(path: str | Path, image_size: tuple[int, int] | None = None) -> dict[int, np.ndarray]:
+def read_labels(path: str | Path, image_size: tuple[int, int] | None = None,
+                size_from: str | None = None) -> dict[int, np.ndarray]:
     """Read labels.csv -> {frame: array([u, v]) in px}.
 
     Rows whose u and v are both empty (or both ``nan``) are unlabelled and
     dropped. Raises InputError naming the file (and line) on a wrong header, a
     non-numeric, infinite or half-missing value, a negative or repeated frame, or, with
     ``image_size`` (height, width), a pixel more than ``BORDER_SLACK_PX``
-    outside the image.
+    outside the image; ``size_from`` names where ``image_size`` came from, for that
+    message (a label that would fit the image with width and height swapped blames the
+    size, not the label).
     """
     path = Path(path)
     try:
-        return _parse_labels(read_text(path), path, image_size)
+        return _parse_labels(read_text(path), path, image_size, size_from)
     except csv.Error as e:
         raise InputError(f"{path}: not a readable CSV file ({e})") from None
 
 
-def _parse_labels(text: str, path: Path, image_size) -> dict[int, np.ndarray]:
+def _parse_labels(text: str, path: Path, image_size, size_from: str | None) -> dict[int, np.ndarray]:
     out: dict[int, np.ndarray] = {}
     reader = csv.reader(text.splitlines())
     header = next(reader, None)
@@ -62,12 +65,26 @@ def _parse_labels(text: str, path: Path, image_size) -> dict[int, np.ndarray]:
             raise InputError(f"{path}: line {line}: u, v must be finite numbers, got {','.join(row[1:])!r}")
         if image_size is not None:
             h, w = image_size
-            s = BORDER_SLACK_PX
-            if not (-s <= uv[0] <= w + s and -s <= uv[1] <= h + s):
-                raise InputError(f"{path}: line {line}: pixel ({row[1].strip()}, {row[2].strip()}) is outside "
-                                 f"the {w}x{h} image")
+            if not _inside(uv, w, h):
+                raise InputError(_outside_message(path, line, row, w, h, size_from))
         out[frame] = uv
     return out
+
+
+def _inside(uv: np.ndarray, w: int, h: int) -> bool:
+    s = BORDER_SLACK_PX
+    return bool(-s <= uv[0] <= w + s and -s <= uv[1] <= h + s)
+
+
+def _outside_message(path: Path, line: int, row: list[str], w: int, h: int, size_from: str | None) -> str:
+    """The error for a label outside the w x h image; one that the h x w image would hold
+    points at the size's source (width and height swapped there?)."""
+    msg = f"{path}: line {line}: pixel ({row[1].strip()}, {row[2].strip()}) is outside the {w}x{h} image"
+    if size_from:
+        msg += f" ({size_from})"
+        if w != h and _inside(np.array([float(row[1]), float(row[2])]), h, w):
+            msg += f"; it lies inside a {h}x{w} image: are width and height swapped in {size_from}?"
+    return msg
 
 
 def write_labels(path: str | Path, labels: dict[int, np.ndarray]) -> None:

@@ -18,6 +18,7 @@ Per-frame problems are YIELDED (not raised) as
 :class:`~graphtrack.errors.FrameError` with these ``reason`` keys:
 
 - ``corrupt_image``: the image message / file / video frame does not decode;
+- ``missing_image``: a row of joints.csv whose image file is not in frames/;
 - ``image_size``: the image size differs from ``ImageSize`` in camera_calibration.yaml;
 - ``joint_count``: the joint reading does not hold the expected number of DH joints;
 - ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf;
@@ -166,8 +167,9 @@ class Recording:
             f = item
             joints = np.asarray(f.joints, dtype=float)
             if f.image.ndim < 2 or f.image.shape[:2] != (h, w):
+                swapped = " (width and height swapped there?)" if f.image.shape[:2] == (w, h) != (h, w) else ""
                 yield FrameError(f.index, "image_size", f"image is {f.image.shape[1]}x{f.image.shape[0]} px, "
-                                 f"camera_calibration.yaml ImageSize says {w}x{h}")
+                                 f"camera_calibration.yaml ImageSize says {w}x{h}{swapped}")
             elif n_exp is not None and joints.size != n_exp:
                 yield FrameError(f.index, "joint_count",
                                  f"joint reading has {joints.size} values, robot.json has {n_exp} DH joints")
@@ -275,8 +277,9 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         n_joints = int(n_dh) if isinstance(n_dh, (int, np.integer)) else _dh_count(path / "robot.json")
     calibration = load_calibration(path / "camera_calibration.yaml")
     size = (calibration.left.height, calibration.left.width)
-    labels = read_labels(path / "labels.csv", size) if (path / "labels.csv").is_file() else None
-    labels_r = read_labels(path / "labels_right.csv", size) if (path / "labels_right.csv").is_file() else None
+    size_from = f"ImageSize in {path / 'camera_calibration.yaml'}"
+    labels, labels_r = (read_labels(path / name, size, size_from) if (path / name).is_file() else None
+                        for name in ("labels.csv", "labels_right.csv"))
     source, notes = find_source(path, topics)
     given = [f"--{k}-topic" for k in ("image", "joint", "jaw") if getattr(topics, k) is not None]
     if isinstance(source, FolderSource) and given:
