@@ -366,7 +366,7 @@ def test_calibration_stereo_keys_and_distortion_models(tmp_path):
                 load_calibration(path)
 
 
-def test_robot_point_feature_names_are_unique_and_tip_feature_is_never_ignored(folder_rec, tmp_path, capsys):
+def test_robot_point_features_are_unique_and_at_most_64_and_tip_feature_is_never_ignored(folder_rec, tmp_path, capsys):
     import shutil
 
     rec = tmp_path / "rec"
@@ -379,6 +379,12 @@ def test_robot_point_feature_names_are_unique_and_tip_feature_is_never_ignored(f
     (rec / "robot.json").write_text(json.dumps(doc))
     code, err = run_cli(["track", rec, "--out", tmp_path / "o", "--estimator", "kinematics", "--quiet"], capsys)
     assert code == 2 and "point_features[1]: name" in error_line(err)
+    from graphtrack.robot.description import MAX_POINT_FEATURES
+
+    doc["point_features"] = [{**doc["point_features"][0], "name": f"m{i}"} for i in range(MAX_POINT_FEATURES + 1)]
+    (rec / "robot.json").write_text(json.dumps(doc))
+    code, err = run_cli(["track", rec, "--out", tmp_path / "o", "--estimator", "kinematics", "--quiet"], capsys)
+    assert code == 2 and f"point_features: {MAX_POINT_FEATURES + 1} entries; at most 64" in error_line(err)
 
 
 def test_detect_refuses_another_runs_files_and_a_folder_in_their_place(folder_rec, tmp_path, capsys):

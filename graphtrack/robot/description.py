@@ -170,13 +170,15 @@ class _Doc:
         if bound is not None and not abs(x) <= bound:
             self.fail(key, f"{x!r} is out of range (|value| <= {bound:g})")
 
-    def items(self, doc: dict, key: str) -> list:
-        """doc[key] as a list of objects ([] when absent or null)."""
+    def items(self, doc: dict, key: str, limit: int | None = None) -> list:
+        """doc[key] as a list of objects ([] when absent or null), of at most ``limit``."""
         v = doc.get(key)
         if v is None:
             return []
         if not isinstance(v, list):
             self.fail(key, f"expected a list of objects, got {type(v).__name__}")
+        if limit is not None and len(v) > limit:
+            self.fail(key, f"{len(v)} entries; at most {limit} are tracked")
         for i, o in enumerate(v):
             if not isinstance(o, dict):
                 self.fail(f"{key}[{i}]", f"expected an object, got {o!r}")
@@ -185,6 +187,9 @@ class _Doc:
 
 #: plausibility bounds of robot.json's numbers: lengths (m), angles (rad), link indices
 MAX_LENGTH_M = 10.0
+#: point features (painted markers) a tool may carry: every one is projected for every
+#: particle and paired with every detection, so memory and time grow with the count
+MAX_POINT_FEATURES = 64
 MAX_ANGLE_RAD = 4 * math.pi
 MAX_LINK = 1000
 
@@ -229,7 +234,7 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
 
     L = MAX_LENGTH_M
     points = []
-    for i, o in enumerate(d.items(doc, "point_features")):
+    for i, o in enumerate(d.items(doc, "point_features", MAX_POINT_FEATURES)):
         d.where = f"point_features[{i}]: "
         p = PointFeature(d.get(o, "name", str, default=f"point_{i}", required=False),
                          d.get(o, "link", int, bound=MAX_LINK), d.get(o, "position", "vec3", bound=L),
