@@ -34,6 +34,21 @@ def test_wrong_arm_names_the_arm_present():
         resolve_topics({"/stereo/left/image": IMG, "/PSM2/measured_js": JS}, TopicSelection(arm="PSM1"), "b.bag")
 
 
+def test_every_other_arm_is_named():
+    with pytest.raises(InputError, match=r"joint topics for PSM2, PSM3: use --arm PSM2 or --arm PSM3"):
+        resolve_topics({"/stereo/left/image": IMG, "/PSM2/measured_js": JS, "/PSM3/measured_js": JS},
+                       TopicSelection(arm="PSM1"), "b.bag")
+
+
+def test_both_namings_read_dvrk1_and_say_so():
+    topics = {"/stereo/left/image": IMG, "/dvrk/PSM1/state_joint_current": JS, "/PSM1/measured_js": JS}
+    r = resolve_topics(topics, TopicSelection(), "b.bag")
+    assert r.joint == "/dvrk/PSM1/state_joint_current"
+    assert r.note.startswith("b.bag: joint topics of PSM1 in both dVRK namings") and "--joint-topic" in r.note
+    assert resolve_topics(topics, TopicSelection(joint="/PSM1/measured_js"), "b.bag").note == ""
+    assert resolve_topics({"/stereo/left/image": IMG, "/PSM1/measured_js": JS}, TopicSelection(), "b.bag").note == ""
+
+
 def test_overrides_and_their_absence():
     topics = {"/cam/left": IMG, "/my/joints": JS, "/my/jaw": JS}
     r = resolve_topics(topics, TopicSelection(image="/cam/left", joint="/my/joints", jaw="/my/jaw"), "b.bag")

@@ -144,6 +144,8 @@ class BagSource:
         chosen = resolve_topics(topics, self.selection, str(self.path))
         self.arm, self.image_topic = chosen.arm, chosen.image
         self.joint_topic, self.jaw_topic = chosen.joint, chosen.jaw
+        if chosen.note:
+            self.warnings.append(chosen.note)
         self.image_type, self.n_images = topics[self.image_topic]
         if self.image_type not in (IMAGE_TYPE, COMPRESSED_TYPE):
             raise InputError(f"{self.path}: topic {self.image_topic} has type {self.image_type}, expected "

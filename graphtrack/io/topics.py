@@ -50,12 +50,14 @@ class TopicSelection:
 
 @dataclass(frozen=True)
 class ResolvedTopics:
-    """The topics read from one bag: arm, left image, joints, jaw (may be absent from the bag)."""
+    """The topics read from one bag: arm, left image, joints, jaw (may be absent from the bag);
+    note: a line for the user about the choice ("" when there is nothing to say)."""
 
     arm: str
     image: str
     joint: str
     jaw: str
+    note: str = ""
 
 
 def joint_topics(arm: str) -> tuple[str, str]:
@@ -95,12 +97,16 @@ def resolve_topics(available: dict[str, tuple[str, int]], sel: TopicSelection, w
     joint = sel.joint or joint_topics(arm)[naming]
     if joint not in present:
         others = [a for a in arms_in(present) if a != arm]
-        hint = (f"; the bag has joint topics for {', '.join(others)}: use --arm {others[0]}" if others
-                else "; name it with --joint-topic")
+        hint = (f"; the bag has joint topics for {', '.join(others)}: use --arm {' or --arm '.join(others)}"
+                if others else "; name it with --joint-topic")
         asked = sel.joint or " or ".join(joint_topics(arm))
         raise InputError(f"{where}: no messages on the joint topic of {arm} ({asked}){hint}")
     jaw = sel.jaw or jaw_topics(arm)[naming]
-    return ResolvedTopics(arm, image, joint, jaw)
+    note = ""
+    if sel.joint is None and all(t in present for t in joint_topics(arm)):
+        note = (f"{where}: joint topics of {arm} in both dVRK namings ({' and '.join(joint_topics(arm))}); "
+                f"reading {joint} and {jaw}: name others with --joint-topic / --jaw-topic")
+    return ResolvedTopics(arm, image, joint, jaw, note)
 
 
 def handeye_arm(keys, sel: TopicSelection, where: str) -> str:
