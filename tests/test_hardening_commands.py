@@ -239,6 +239,14 @@ def test_joints_on_another_clock_or_missing_skip_the_frames(tmp_path):
     assert far == list(range(7, 19))
     assert [f.frame for f in out if isinstance(f, FrameError)] == far
     assert len(out) == 30
+    # --max-joint-gap overrides the rule: 0.5 s keeps frames up to 15 frames from a reading, 0.1 s skips more
+    for gap in (0.5, 0.1):
+        rec = open_recording(tmp_path / "b" / "seq", **NO_ROBOT, topics=TopicSelection(joint_gap=gap))
+        far = [i for i in range(1, 25) if min(i, 25 - i) * 33_333_333 > gap * 1e9]
+        assert [f.frame for f in rec.frames() if isinstance(f, FrameError)] == far
+    for bad in (0.0, -1.0, float("nan"), 11.0):
+        with pytest.raises(InputError, match=r"--max-joint-gap: seconds in \(0, 10\]"):
+            TopicSelection(joint_gap=bad)
 
 
 def test_joints_recorded_at_a_low_rate_are_used_and_a_lost_jaw_skips(tmp_path):

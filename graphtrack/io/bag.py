@@ -216,10 +216,11 @@ class BagSource:
         for topic, table in ((self.joint_topic, joints), (self.jaw_topic, jaw)):
             if table is jaw and not self.has_jaw:
                 continue
-            gap, tol = table.gap_s(stamp_ns), table.tolerance_s(MAX_JOINT_GAP_S)
+            given = self.selection.joint_gap
+            gap, tol = table.gap_s(stamp_ns), given if given is not None else table.tolerance_s(MAX_JOINT_GAP_S)
             if gap > tol:
                 return (f"the nearest {topic} reading is {gap:.3f} s from the image's stamp (more than "
-                        f"{tol:.3g} s: not recorded then, or stamped on another clock)")
+                        f"{tol:.3g} s: not recorded then, or stamped on another clock; --max-joint-gap)")
         return None
 
     def _check_jaw(self, jaw: JointTable) -> None:

@@ -282,8 +282,9 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
                         for name in ("labels.csv", "labels_right.csv"))
     source, notes = find_source(path, topics)
     given = [f"--{k}-topic" for k in ("image", "joint", "jaw") if getattr(topics, k) is not None]
+    given += ["--max-joint-gap"] if topics.joint_gap is not None else []
     if isinstance(source, FolderSource) and given:
-        notes.append(f"{path}: {', '.join(given)} ignored: they name bag topics, and this recording is the "
+        notes.append(f"{path}: {', '.join(given)} ignored: they are for bags, and this recording is the "
                      "folder form (frames/ or video.mp4 with joints.csv)")
     handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
     if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:

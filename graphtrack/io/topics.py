@@ -23,6 +23,8 @@ from graphtrack.errors import InputError
 
 ARMS = ("PSM1", "PSM2", "PSM3")
 DEFAULT_ARM = "PSM1"
+#: s: the most --max-joint-gap allows (a reading farther than that belongs to another moment)
+MAX_JOINT_GAP_S = 10.0
 IMAGE_TOPICS = ("/stereo/left/image", "/stereo/left/image/compressed")
 
 
@@ -31,13 +33,16 @@ class TopicSelection:
     """The user's choice of arm and topics; None everywhere means "detect it".
 
     arm: PSM1 | PSM2 | PSM3 (the joint topics and the handeye.yaml keys);
-    image / joint / jaw: explicit topic names, overriding the conventions.
+    image / joint / jaw: explicit topic names, overriding the conventions;
+    joint_gap: s, how far an image may lie from its nearest joint (and jaw) reading,
+    overriding the bag's rule (0.2 s, or 3 median periods of a slower topic).
     """
 
     arm: str | None = None
     image: str | None = None
     joint: str | None = None
     jaw: str | None = None
+    joint_gap: float | None = None
 
     def __post_init__(self):
         if self.arm is not None and self.arm not in ARMS:
@@ -46,6 +51,9 @@ class TopicSelection:
             t = getattr(self, name)
             if t is not None and not (isinstance(t, str) and t.startswith("/") and len(t) > 1):
                 raise InputError(f"--{name}-topic: a topic name starts with '/', got {t!r}")
+        g = self.joint_gap
+        if g is not None and not (isinstance(g, (int, float)) and 0 < g <= MAX_JOINT_GAP_S):
+            raise InputError(f"--max-joint-gap: seconds in (0, {MAX_JOINT_GAP_S:g}], got {g!r}")
 
 
 @dataclass(frozen=True)
