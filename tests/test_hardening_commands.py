@@ -343,6 +343,14 @@ def test_compare_recomputes_a_cell_whose_recording_changed(folder_rec, tmp_path,
 
     assert ran().startswith("1 cells computed, 0 reused")
     assert ran().startswith("0 cells computed, 1 reused")       # nothing changed: reused
+    assert main(["track", str(rec), "--out", str(rec / "run"), "--estimator", "kinematics", "--quiet"]) == 0
+    capsys.readouterr()
+    assert ran().startswith("0 cells computed, 1 reused")       # a run's output inside it is not the recording
+    inside = ["compare", rec, "--out", rec / "study", "--estimators", "kinematics"]
+    assert main([str(a) for a in inside]) == 0                    # the study inside the recording it reads
+    assert "| kinematics | missing" not in (rec / "study" / "table.md").read_text()
+    assert main([str(a) for a in inside]) == 0
+    assert "0 cells computed, 1 reused" in capsys.readouterr().out
     joints = (rec / "joints.csv").read_text().splitlines()
     head, row = joints[0], joints[1].split(",")
     row[2] = repr(float(row[2]) + 0.01)                           # one joint reading edited in place

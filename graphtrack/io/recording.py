@@ -322,15 +322,16 @@ def _consistency_notes(rec: Recording) -> list[str]:
 def fingerprint(path: str | Path) -> dict[str, list[int]]:
     """What identifies a recording folder's content cheaply, to tell a changed recording
     from the one a result was computed on: per top-level file its [size, mtime ns], per
-    top-level folder (frames/, frames_right/, a ROS 2 bag) the count, total size and
-    latest mtime of its files. No file is read."""
+    folder of the recording (frames/, frames_right/, a ROS 2 bag) the count, total size and
+    latest mtime of its files. Other folders (a run's output kept beside the recording,
+    even the study itself) are not part of it. No file is read."""
     out: dict[str, list[int]] = {}
     for p in sorted(Path(path).iterdir()):
         try:
             if p.is_file():
                 st = p.stat()
                 out[p.name] = [st.st_size, st.st_mtime_ns]
-            elif p.is_dir():
+            elif p.is_dir() and (p.name in ("frames", "frames_right") or (p / "metadata.yaml").is_file()):
                 sts = [q.stat() for q in p.iterdir() if q.is_file()]
                 out[p.name + "/"] = [len(sts), sum(s.st_size for s in sts), max((s.st_mtime_ns for s in sts), default=0)]
         except OSError:
