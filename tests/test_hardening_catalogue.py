@@ -118,6 +118,13 @@ def add_q(rows):  # 7 joints in every row (header q1..q7)
     return [r[:8] + (["q7"] if i == 0 else ["0.1"]) + r[8:] for i, r in enumerate(rows)]
 
 
+def to_degrees(rows):  # the revolute joints (q1, q2, q4, q5, q6) and the jaw in degrees
+    for r in rows[1:]:
+        for c in (2, 3, 5, 6, 7, 8):
+            r[c] = repr(math.degrees(float(r[c])))
+    return rows
+
+
 def swap_stamps(rows):
     rows[4][1], rows[5][1] = rows[5][1], rows[4][1]
     return rows
@@ -210,6 +217,9 @@ EXIT2 = [
     ("joints_7_per_row", "folder", lambda r: edit_joints(r, add_q), (), r"joints\.csv: .*7 joints.*robot\.json.*6"),
     ("nan_column", "folder", lambda r: edit_joints(r, set_column(4, "nan")), (), r"no frame was tracked.*nan_joints"),
     # silent wrong output before
+    ("joints_in_degrees", "folder", lambda r: edit_joints(r, to_degrees), (),
+     r"joints\.csv: 12 of 12 rows hold readings no arm makes in radians and metres \(first: frame 0, q\d = "
+     r".* beyond a full turn .*radians \(degrees\?\)\)"),
     ("joints_fewer_rows_than_images", "folder", lambda r: edit_joints(r, lambda rows: rows[:-2]), (),
      r"frames.*12 images.*joints\.csv.*10 rows"),
     ("unsorted_stamps", "folder", lambda r: edit_joints(r, swap_stamps), (), r"joints\.csv: line 6: stamp .* not after"),

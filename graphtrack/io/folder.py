@@ -137,6 +137,10 @@ class FolderSource:
                              f"(first frame without a row: {self.n_images}); every frame needs its own row, "
                              "frames are never re-paired")
 
+    def readings(self) -> tuple[np.ndarray, np.ndarray]:
+        """(joints (N, n), jaw (N,)) of joints.csv, as read (NaN where empty)."""
+        return self._joints, self._jaw
+
     def stamps(self) -> np.ndarray:
         """Frame stamps (s) from joints.csv."""
         return self._stamps.copy()

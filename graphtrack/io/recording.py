@@ -22,7 +22,9 @@ Per-frame problems are YIELDED (not raised) as
 - ``image_size``: the image size differs from ``ImageSize`` in camera_calibration.yaml;
 - ``joint_count``: the joint reading does not hold the expected number of DH joints;
 - ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf;
-- ``joint_range``: a joint (or jaw) reading beyond ``MAX_JOINT`` (100 rad or m);
+- ``joint_range``: a joint (or jaw) reading no arm makes in radians and metres: a
+  revolute one beyond a full turn, a prismatic one beyond 1 m
+  (:mod:`graphtrack.io.joint_units`; a joints.csv whose rows mostly are is refused);
 - ``flat_image``: the image's bottom quarter is one flat colour and the rest is not (a
   damaged JPEG that decodes with a flat tail).
 
@@ -50,6 +52,7 @@ from graphtrack.geometry.camera import Calibration, load_calibration
 from graphtrack.io.bag import BagSource
 from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
+from graphtrack.io.joint_units import check_table, joint_bounds, out_of_range
 from graphtrack.io.labels import read_labels
 from graphtrack.io.topics import TopicSelection
 from graphtrack.robot.description import load_robot_json
@@ -160,6 +163,7 @@ class Recording:
         n_exp = self.n_joints if expected_joints is None else int(expected_joints)
         h, w = self.image_size
         has_jaw = self.has_jaw
+        bounds = joint_bounds(self.robot, n_exp)
         for item in self.source.frames(start, right=right):
             if isinstance(item, FrameError):
                 yield item
@@ -175,9 +179,8 @@ class Recording:
                                  f"joint reading has {joints.size} values, robot.json has {n_exp} DH joints")
             elif not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(f.jaw)):
                 yield FrameError(f.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {f.jaw}")
-            elif np.any(np.abs(joints) > MAX_JOINT) or (has_jaw and abs(f.jaw) > MAX_JOINT):
-                yield FrameError(f.index, "joint_range", f"joint reading {joints.tolist()} beyond "
-                                 f"|q| <= {MAX_JOINT:g} (rad or m)")
+            elif (why := out_of_range(joints, f.jaw, bounds, has_jaw)) is not None:
+                yield FrameError(f.index, "joint_range", f"joint reading {why}")
             elif (why := flat_image(f.image)) is not None:
                 yield FrameError(f.index, "flat_image", why)
             else:
@@ -185,10 +188,6 @@ class Recording:
                     f.image_right = None
                     self.right_size_skips += 1
                 yield f
-
-
-#: a joint reading beyond this (rad or m) is no reading of a real arm
-MAX_JOINT = 100.0
 
 
 def flat_image(image: np.ndarray) -> str | None:
@@ -287,6 +286,8 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
         notes.append(f"{path}: {', '.join(given)} ignored: they are for bags, and this recording is the "
                      "folder form (frames/ or video.mp4 with joints.csv)")
     handeye = load_handeye(path / "handeye.yaml", getattr(source, "arm", None) or topics.arm)
+    if isinstance(source, FolderSource):
+        check_table(*source.readings(), joint_bounds(robot, n_joints), source.has_jaw, path / "joints.csv")
     if isinstance(source, FolderSource) and n_joints is not None and source.n_columns != n_joints:
         raise InputError(f"{path / 'joints.csv'}: rows hold {source.n_columns} joints (q1..q{source.n_columns}) "
                          f"but {path / 'robot.json'} has {n_joints} DH joints")
