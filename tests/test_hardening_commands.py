@@ -199,7 +199,7 @@ H, W = 48, 64
 
 
 def _bag(tmp_path, n=6, joint_offset_ns=0, odd_frame=None, jaw_values=1, missing_joints=(), missing_jaw=(),
-         empty_jaw=()):
+         empty_jaw=(), q=(0.1,) * 6, jaw_value=0.2):
     ts = typestore()
     seq = write_meta(tmp_path / "seq", h=H, w=W)
     img = np.full((H, W, 3), 90, np.uint8)
@@ -215,9 +215,9 @@ def _bag(tmp_path, n=6, joint_offset_ns=0, odd_frame=None, jaw_values=1, missing
             m = image_msg(ts, t, img)
         msgs.append((IMAGE, "sensor_msgs/msg/Image", t, m))
         if i not in missing_joints:
-            msgs.append((JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t + joint_offset_ns, [0.1] * 6)))
+            msgs.append((JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t + joint_offset_ns, list(q))))
         if i not in missing_jaw:
-            jaw = [] if i in empty_jaw else [0.2] * jaw_values
+            jaw = [] if i in empty_jaw else [jaw_value] * jaw_values
             msgs.append((JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, jaw)))
     write_custom_bag(seq / "rec.bag", msgs)
     return seq
@@ -258,6 +258,18 @@ def test_joints_recorded_at_a_low_rate_are_used_and_a_lost_jaw_skips(tmp_path):
     out = list(open_recording(_bag(tmp_path / "b", n=30, missing_jaw=range(1, 25)), **NO_ROBOT).frames())
     bad = [f for f in out if isinstance(f, FrameError)]
     assert [f.frame for f in bad] == list(range(7, 19)) and JAW in str(bad[0])
+
+
+def test_a_bag_in_degrees_or_millimetres_is_refused(tmp_path):
+    from test_io_joint_units import PSM
+
+    psm = {"robot_loader": lambda p: PSM, "expected_joints": 6}
+    with pytest.raises(InputError, match=r"rec\.bag: /dvrk/PSM1/state_joint_current: 6 of 6 messages hold readings "
+                                         r"no arm makes .*q3 = 120 is beyond \|q\| <= 1 m"):
+        list(open_recording(_bag(tmp_path / "a", q=(0.1, 0.1, 120.0, 0.1, 0.1, 0.1)), **psm).frames())
+    with pytest.raises(InputError, match=r"state_jaw_current: 6 of 6 messages .*jaw = 40 is beyond a full turn"):
+        list(open_recording(_bag(tmp_path / "b", jaw_value=40.0), **psm).frames())
+    assert len(list(open_recording(_bag(tmp_path / "c"), **psm).frames())) == 6
 
 
 def test_a_jaw_topic_with_several_values_is_refused_and_an_empty_one_is_nan(tmp_path):

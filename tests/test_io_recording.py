@@ -27,7 +27,7 @@ NO_ROBOT = {"robot_loader": lambda p: None}
 def make_frames(n=8, h=H, w=W, jaw=True, seed=0, t0=1_600_000_000.0):
     rng = np.random.default_rng(seed)
     return [NS(stamp=t0 + i * 0.05, image=rng.integers(0, 256, (h, w, 3), dtype=np.uint8),
-               joints=rng.normal(size=6), jaw=0.01 * i if jaw else float("nan")) for i in range(n)]
+               joints=0.2 * rng.normal(size=6), jaw=0.01 * i if jaw else float("nan")) for i in range(n)]
 
 
 def write_meta(seq: Path, h=H, w=W, n_dh=6, labels=None):

@@ -152,6 +152,17 @@ class Recording:
     def __iter__(self) -> Iterator[object]:
         return self.frames()
 
+    def _check_bag_units(self, bounds) -> None:
+        """InputError when most joint (or jaw) messages of the bag are beyond their bounds
+        (:func:`graphtrack.io.joint_units.check_table`)."""
+        src = self.source
+        joints, jaw = src.joint_tables()
+        check_table(joints.values, np.zeros(len(joints.values)), bounds, False, f"{src.path}: {src.joint_topic}",
+                    "messages")
+        if self.has_jaw and bounds is not None:
+            check_table(np.zeros((len(jaw.values), 0)), jaw.values[:, 0], np.zeros(0), True,
+                        f"{src.path}: {src.jaw_topic}", "messages")
+
     def frames(self, start: int = 0, expected_joints: int | None = None,
                right: bool = True) -> Iterator[object]:
         """Yield a :class:`~graphtrack.estimate.base.Frame` or a FrameError per frame, in order.
@@ -164,6 +175,8 @@ class Recording:
         h, w = self.image_size
         has_jaw = self.has_jaw
         bounds = joint_bounds(self.robot, n_exp)
+        if isinstance(self.source, BagSource) and start == 0:
+            self._check_bag_units(bounds)
         for item in self.source.frames(start, right=right):
             if isinstance(item, FrameError):
                 yield item
