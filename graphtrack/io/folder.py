@@ -29,19 +29,27 @@ from graphtrack.io.frame import Frame
 from graphtrack.io.video import open_video
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
+#: s: the most the median interval between frames may be (the motion model's frame to frame)
+MAX_FRAME_INTERVAL_S = 10.0
 
 
 def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """joints.csv -> (stamps (N,) s, joints (N, n), jaw (N,) NaN when empty).
 
     Raises InputError naming the file (and line) on a wrong header, a wrong
-    field count, a non-number, a ``frame`` that is not the row number, or a
-    stamp that is empty, not finite or not after the previous row's.
+    field count, a non-number, a ``frame`` that is not the row number, a
+    stamp that is empty, not finite or not after the previous row's, or stamps
+    whose median interval exceeds ``MAX_FRAME_INTERVAL_S`` (not seconds).
     """
     try:
-        return _parse_joints_csv(read_text(path), path)
+        out = _parse_joints_csv(read_text(path), path)
     except csv.Error as e:
         raise InputError(f"{path}: not a readable CSV file ({e})") from None
+    step = float(np.median(np.diff(out[0]))) if len(out[0]) > 1 else 0.0
+    if step > MAX_FRAME_INTERVAL_S:
+        raise InputError(f"{path}: the stamps are {step:.6g} apart (median); stamps are seconds, and frames "
+                         f"more than {MAX_FRAME_INTERVAL_S:g} s apart are no video (milliseconds or nanoseconds?)")
+    return out
 
 
 def _parse_joints_csv(text: str, path: Path):
