@@ -541,3 +541,20 @@ def test_folder_without_joints_csv(tmp_path):
     (seq / "joints.csv").unlink()
     with pytest.raises(InputError, match=r"joints\.csv: file not found"):
         open_recording(seq, **NO_ROBOT)
+
+
+def test_a_principal_point_far_off_centre_is_warned_about(tmp_path):
+    """K scaled for an image twice the size puts (cx, cy) near the corner: a warning naming
+    camera_calibration.yaml; K at the centre, or a few per cent off it, says nothing."""
+    from graphtrack.io.recording import off_centre
+
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    assert not any("principal point" in w for w in open_recording(seq, **NO_ROBOT).warnings)
+    for (cx, cy), far in (((W / 2, H / 2), False), ((0.55 * W, 0.45 * H), False), ((0.74 * W, H / 2), False),
+                          ((W - 2, H - 2), True), ((W / 2, 0.2 * H), True)):
+        cam = Camera(np.array([[50.0, 0, cx], [0, 50.0, cy], [0, 0, 1]]), np.zeros(5), H, W)
+        assert off_centre(cam) == far
+        save_calibration(seq / "camera_calibration.yaml", Calibration(cam))
+        got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "principal point" in w]
+        assert len(got) == far and (not far or got[0].startswith(f"{seq / 'camera_calibration.yaml'}: K1's"))

@@ -326,11 +326,24 @@ def _consistency_notes(rec: Recording) -> list[str]:
     if rec.labels_right is not None and not rec.stereo:
         notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
                      "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
+    for key, cam in (("K1", rec.calibration.left), ("K2", rec.calibration.right)):
+        if cam is not None and off_centre(cam):
+            notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s principal point "
+                         f"({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) px lies outside the middle half of the "
+                         f"{cam.width}x{cam.height} image: a calibration of another image size?")
     right_dir = rec.path / "frames_right"
     if isinstance(rec.source, FolderSource) and right_dir.exists() and not right_dir.is_dir():
         notes.append(f"{right_dir}: not a folder, so the recording has no right images; "
                      "tracking the left image only")
     return notes
+
+
+def off_centre(cam) -> bool:
+    """True when the camera's principal point lies outside the middle half of its image
+    (|cx - w/2| > w/4 or |cy - h/2| > h/4): endoscope optics centre it within a few
+    per cent, and K scaled for another resolution puts it there."""
+    cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])
+    return abs(cx - cam.width / 2) > cam.width / 4 or abs(cy - cam.height / 2) > cam.height / 4
 
 
 def fingerprint(path: str | Path) -> dict[str, list[int]]:
