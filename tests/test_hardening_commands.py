@@ -455,3 +455,24 @@ def test_options_the_chosen_estimator_does_not_take_are_named(tmp_path, capsys):
         "warning: --particles applies to pf, not to batch: ignored",
         "warning: --no-search applies to pf and smoother, not to batch: ignored"]
     assert lines("--estimator", "smoother", "--lag", "2", "--no-edge-bias") == []
+
+
+def test_recording_warnings_are_kept_in_metrics_when_quiet(folder_rec, tmp_path, capsys):
+    import shutil
+
+    import yaml
+
+    from graphtrack.track import MAX_WARNINGS, capped
+
+    rec = tmp_path / "rec"
+    shutil.copytree(folder_rec, rec)
+    doc = yaml.safe_load((rec / "camera_calibration.yaml").read_text())
+    K = doc["K1"]["data"] if isinstance(doc["K1"], dict) else doc["K1"]
+    K[2], K[5] = 2 * K[2], 2 * K[5]                        # the principal point of a 2x larger image
+    (rec / "camera_calibration.yaml").write_text(yaml.safe_dump(doc))
+    code, err = run_cli(["track", rec, "--out", tmp_path / "o", "--estimator", "kinematics", "--quiet"], capsys)
+    assert code == 0 and err == ""
+    kept = json.loads((tmp_path / "o" / "metrics.json").read_text())["recording_warnings"]
+    assert len(kept) == 1 and "K1's principal point" in kept[0]
+    lines = [str(i) for i in range(MAX_WARNINGS + 5)]
+    assert capped(lines) == lines[:MAX_WARNINGS] + ["... and 5 more"] and capped(lines[:3]) == lines[:3]

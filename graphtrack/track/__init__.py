@@ -159,8 +159,19 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     if result.get("frames_tip_in_front") and not result.get("frames_tip_in_image"):
         warn(f"warning: the tool tip projects outside the image in every tracked frame; check "
              f"{rec.path / 'handeye.yaml'} (and robot.json's tool_tip)", quiet)
+    result["recording_warnings"] = capped(rec.warnings)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
+
+
+#: recording warnings kept in metrics.json (the rest counted)
+MAX_WARNINGS = 20
+
+
+def capped(lines: list[str]) -> list[str]:
+    """The first MAX_WARNINGS lines, and a line counting the rest."""
+    more = len(lines) - MAX_WARNINGS
+    return list(lines[:MAX_WARNINGS]) + ([f"... and {more} more"] if more > 0 else [])
 
 
 def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, run: RunLog,
