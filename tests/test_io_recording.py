@@ -558,3 +558,19 @@ def test_a_principal_point_far_off_centre_is_warned_about(tmp_path):
         save_calibration(seq / "camera_calibration.yaml", Calibration(cam))
         got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "principal point" in w]
         assert len(got) == far and (not far or got[0].startswith(f"{seq / 'camera_calibration.yaml'}: K1's"))
+
+
+def test_a_baseline_with_the_right_camera_on_the_left_is_warned_about(tmp_path):
+    """T's sign flipped (or the images swapped) moved a simulated stereo run's tip 1.5 -> 30 px
+    with exit 0: a warning naming T; the dVRK's T = (-5, 0, 0.17) mm says nothing."""
+    from graphtrack.io.recording import left_of_left
+
+    assert left_of_left([5e-3, 0, 1.7e-4]) and not left_of_left([-5e-3, 0, 1.7e-4])
+    assert not left_of_left([1e-3, -5e-3, 0])           # a vertical rig: not judged
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    cam = Camera(np.array([[50.0, 0, W / 2], [0, 50.0, H / 2], [0, 0, 1]]), np.zeros(5), H, W)
+    for tx, warned in ((-5e-3, False), (5e-3, True)):
+        save_calibration(seq / "camera_calibration.yaml", Calibration(cam, cam, np.eye(3), np.array([tx, 0, 1.7e-4])))
+        got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "to the left of the left one" in w]
+        assert len(got) == warned and (not warned or got[0].startswith(f"{seq / 'camera_calibration.yaml'}: T = [5.0"))

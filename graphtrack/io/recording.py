@@ -326,6 +326,10 @@ def _consistency_notes(rec: Recording) -> list[str]:
     if rec.labels_right is not None and not rec.stereo:
         notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
                      "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
+    if rec.calibration.stereo and left_of_left(rec.calibration.T):
+        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {np.round(1e3 * np.ravel(rec.calibration.T), 2).tolist()} "
+                     "mm puts the right camera to the left of the left one (X_right = R X_left + T has T_x < 0 for "
+                     "a right camera on the right): are T's sign or the left and right images swapped?")
     for key, cam in (("K1", rec.calibration.left), ("K2", rec.calibration.right)):
         if cam is not None and off_centre(cam):
             notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s principal point "
@@ -336,6 +340,13 @@ def _consistency_notes(rec: Recording) -> list[str]:
         notes.append(f"{right_dir}: not a folder, so the recording has no right images; "
                      "tracking the left image only")
     return notes
+
+
+def left_of_left(T) -> bool:
+    """True when a mostly horizontal baseline T (right-from-left, |T_x| the largest
+    component) has T_x > 0: the "right" camera sits left of the left one."""
+    t = np.ravel(T).astype(float)
+    return bool(t.size == 3 and abs(t[0]) >= np.abs(t[1:]).max() and t[0] > 0)
 
 
 def off_centre(cam) -> bool:
