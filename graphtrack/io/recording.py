@@ -327,8 +327,8 @@ def _consistency_notes(rec: Recording) -> list[str]:
         notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
                      "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
     if rec.calibration.stereo and left_of_left(rec.calibration.T):
-        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {np.round(1e3 * np.ravel(rec.calibration.T), 2).tolist()} "
-                     "mm puts the right camera to the left of the left one (X_right = R X_left + T has T_x < 0 for "
+        t_mm = np.round(1e3 * np.ravel(rec.calibration.T), 2).tolist()
+        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {t_mm} mm puts the right camera to the left of the left one (X_right = R X_left + T has T_x < 0 for "
                      "a right camera on the right): are T's sign or the left and right images swapped?")
     for key, cam in (("K1", rec.calibration.left), ("K2", rec.calibration.right)):
         if cam is not None and off_centre(cam):
