@@ -41,7 +41,7 @@ from graphtrack.errors import InputError
 from graphtrack.estimate import estimator_class
 from graphtrack.study.cells import CELL_OPTION_DEFAULTS, CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions, view_flags
 from graphtrack.study.execute import check_ray_address, run_local, run_ray
-from graphtrack.study.report import is_done, plot_accumulated, write_tables
+from graphtrack.study.report import is_done, plot_accumulated, recording_notes, write_tables
 
 # -- which combinations exist -----------------------------------------------------------
 def supported_observations(estimator: str) -> tuple[str, ...]:
@@ -191,7 +191,7 @@ def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers:
     else:
         run_local(todo, workers, quiet)
     plot_accumulated(out, cells)
-    data = write_tables(out, cells, notes)
+    data = write_tables(out, cells, notes + recording_notes(cells))
     data["ran"] = len(todo)
     data["reused"] = len(cells) - len(todo)
     data["cells"] = cells

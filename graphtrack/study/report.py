@@ -35,6 +35,19 @@ def is_done(cell: Cell) -> bool:
     return stored == wanted and (Path(cell.out) / "metrics.json").is_file()
 
 
+def recording_notes(cells: list[Cell]) -> list[str]:
+    """The lines the cells' runs warned about their recordings (metrics.json's
+    ``recording_warnings``), each once, in cell order: a study's cells run quietly."""
+    lines: dict[str, None] = {}
+    for cell in cells:
+        try:
+            doc = json.loads((Path(cell.out) / "metrics.json").read_text())
+        except (OSError, json.JSONDecodeError):
+            continue
+        lines.update(dict.fromkeys(str(w) for w in doc.get("recording_warnings") or []))
+    return list(lines)
+
+
 def cell_status(cell: Cell) -> dict:
     """{'state': 'done'|'error'|'missing', 'result': ..., 'error': ..., 'internal': a bug, not
     bad input} from the cell folder."""
