@@ -180,6 +180,19 @@ def test_decode_image_encodings():
     np.testing.assert_array_equal(decode_image(msg, "sensor_msgs/msg/Image", "x"), bgr)
 
 
+@pytest.mark.parametrize("pattern", ["rggb", "bggr", "gbrg", "grbg"])
+def test_decode_bayer_mosaics(pattern):
+    """A flat colour mosaicked by hand in the ROS pattern (its top-left 2x2, row by row)
+    demosaics back to that colour away from the border (oracle: the colour itself)."""
+    colour = {"b": 200, "g": 100, "r": 30}
+    mosaic = np.zeros((12, 16), np.uint8)
+    for k, ch in enumerate(pattern):
+        mosaic[k // 2::2, k % 2::2] = colour[ch]
+    out = decode_image(image_msg(typestore(), 1, mosaic, f"bayer_{pattern}8"), "sensor_msgs/msg/Image", "x")
+    assert out.shape == (12, 16, 3)
+    np.testing.assert_array_equal(out[2:-2, 2:-2].reshape(-1, 3), np.tile([200, 100, 30], (8 * 12, 1)))
+
+
 # -- synchronisation ------------------------------------------------------------------------
 def test_nearest_header_stamp_sync(tmp_path):
     """Joints at 7 Hz with offset stamps, written out of stamp order and with record times

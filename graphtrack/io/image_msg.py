@@ -1,7 +1,8 @@
 """sensor_msgs images -> BGR arrays, and a check for damaged raw image data.
 
 Raw images (``sensor_msgs/msg/Image``: rgb8, bgr8, mono8 / 8UC1, 8UC3, rgba8,
-bgra8, rows of ``step`` bytes) and compressed ones (``CompressedImage``: any
+bgra8, and a camera's colour-filter mosaic bayer_rggb8 / bggr8 / gbrg8 / grbg8,
+demosaiced by OpenCV; rows of ``step`` bytes) and compressed ones (``CompressedImage``: any
 format cv2.imdecode reads) decode to H x W x 3 uint8 BGR. Raw messages carry no
 checksum, so :func:`noise_span` looks for random bytes in a decoded raw image.
 """
@@ -15,6 +16,9 @@ from graphtrack.io.decode import decode_bytes
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
+#: ROS Bayer encodings (the mosaic's top-left 2x2, row by row) -> OpenCV's demosaicing code
+BAYER = {"bayer_rggb8": cv2.COLOR_BayerRGGB2BGR, "bayer_bggr8": cv2.COLOR_BayerBGGR2BGR,
+         "bayer_gbrg8": cv2.COLOR_BayerGBRG2BGR, "bayer_grbg8": cv2.COLOR_BayerGRBG2BGR}
 
 
 def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
@@ -29,10 +33,11 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
             raise ValueError(f"compressed image ({msg.format!r}) does not decode" + (f" ({why})" if why else ""))
         return img
     enc = msg.encoding.lower()
-    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "8uc3": 3, "rgba8": 4, "bgra8": 4}
+    channels = {"rgb8": 3, "bgr8": 3, "mono8": 1, "8uc1": 1, "8uc3": 3, "rgba8": 4, "bgra8": 4,
+                **dict.fromkeys(BAYER, 1)}
     if enc not in channels:
         raise InputError(f"{where}: image encoding {msg.encoding!r} is not supported "
-                         "(rgb8, bgr8, mono8, rgba8, bgra8)")
+                         f"(rgb8, bgr8, mono8, rgba8, bgra8, {', '.join(BAYER)})")
     h, w, c, step = int(msg.height), int(msg.width), channels[enc], int(msg.step)
     data = np.asarray(msg.data, dtype=np.uint8).ravel()
     if h <= 0 or w <= 0 or step < w * c or data.size < step * (h - 1) + w * c:
@@ -41,7 +46,7 @@ def decode_image(msg, msgtype: str, where: str) -> np.ndarray:
         data = np.concatenate([data, np.zeros(step * h - data.size, np.uint8)])
     img = data[: step * h].reshape(h, step)[:, : w * c].reshape(h, w, c)
     conv = {"rgb8": cv2.COLOR_RGB2BGR, "rgba8": cv2.COLOR_RGBA2BGR, "bgra8": cv2.COLOR_BGRA2BGR,
-            "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR}.get(enc)
+            "mono8": cv2.COLOR_GRAY2BGR, "8uc1": cv2.COLOR_GRAY2BGR, **BAYER}.get(enc)
     return cv2.cvtColor(img, conv) if conv is not None else img.copy()
 
 
