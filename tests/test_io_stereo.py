@@ -147,8 +147,9 @@ def test_bag_right_matched_by_stamp_not_order(tmp_path):
     assert rec.right_skips["missing"] == 1
 
 
-def _merge_bags(left, right, out, left_topic, right_topic):
-    """Left bag as is + the right bag's image messages renamed to the right topic."""
+def _merge_bags(left, right, out, left_topic, right_topic, left_as=None):
+    """Left bag as is (its image topic renamed to ``left_as`` if given) + the right bag's
+    image messages renamed to the right topic."""
     from rosbags.rosbag1 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -156,7 +157,7 @@ def _merge_bags(left, right, out, left_topic, right_topic):
     msgs = []
     with Reader(left) as r:
         for c, t, raw in r.messages():
-            msgs.append((t, c.topic, c.msgtype, raw))
+            msgs.append((t, left_as if left_as and c.topic == left_topic else c.topic, c.msgtype, raw))
     with Reader(right) as r:
         for c, t, raw in r.messages():
             if c.topic == left_topic:
@@ -167,6 +168,37 @@ def _merge_bags(left, right, out, left_topic, right_topic):
             if topic not in conns:
                 conns[topic] = w.add_connection(topic, typ, typestore=ts)
             w.write(conns[topic], t, raw)
+
+
+def test_bag_right_topic_of_another_name(tmp_path):
+    """A camera driver's names: --image-topic /endo/left/image_raw finds its twin
+    /endo/right/image_raw (and says so); --right-image-topic names any other; without
+    either, those images are not read (mono)."""
+    from graphtrack.io.topics import TopicSelection
+
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(True), n=4)
+    lefts = [NS(stamp=f.stamp, image=f.image, joints=f.joints, jaw=f.jaw) for f in frames]
+    rights = [NS(stamp=f.stamp, image=f.image_right, joints=f.joints, jaw=f.jaw) for f in frames]
+    write_bag(tmp_path / "l.bag", lefts)
+    write_bag(tmp_path / "r.bag", rights)
+    from graphtrack.io import bag
+
+    _merge_bags(tmp_path / "l.bag", tmp_path / "r.bag", seq / "s.bag", bag.IMAGE_TOPIC, "/endo/right/image_raw",
+                left_as="/endo/left/image_raw")
+    for sel, stereo, note in ((TopicSelection(image="/endo/left/image_raw"), True, True),
+                              (TopicSelection(image="/endo/left/image_raw", right="/endo/right/image_raw"), True,
+                               False),
+                              (TopicSelection(image="/endo/left/image_raw", right="/endo/left/image_raw"), True,
+                               False)):
+        rec = open_recording(seq, **NO_ROBOT, topics=sel)
+        out = list(rec.frames())
+        assert rec.stereo == stereo and all(f.image_right is not None for f in out)
+        assert any("twin of --image-topic" in w for w in rec.warnings) == note
+        if sel.right == "/endo/right/image_raw" or sel.right is None:
+            np.testing.assert_array_equal(out[2].image_right, frames[2].image_right)
+    with pytest.raises(InputError, match=r"no messages on --right-image-topic /nope"):
+        open_recording(seq, **NO_ROBOT, topics=TopicSelection(image="/endo/left/image_raw", right="/nope"))
 
 
 @pytest.mark.parametrize("rectified", [True, False])

@@ -43,6 +43,9 @@ def add_source_arguments(p) -> None:
                    help="joint topic (default: /dvrk/ARM/state_joint_current, or dVRK 2.x /ARM/measured_js)")
     g.add_argument("--jaw-topic", metavar="TOPIC", default=None,
                    help="jaw topic (default: /dvrk/ARM/state_jaw_current, or dVRK 2.x /ARM/jaw/measured_js)")
+    g.add_argument("--right-image-topic", metavar="TOPIC", default=None,
+                   help="stereo right image topic (default: the --image-topic with left -> right, else "
+                        "/stereo/right/image or /stereo/right/image/compressed)")
     g.add_argument("--max-joint-gap", type=float, metavar="S", default=None,
                    help="a frame whose nearest joint (or jaw) reading is more than S seconds from its image is "
                         "skipped (default: 0.2, or 3 median periods of a slower joint topic)")
@@ -50,7 +53,7 @@ def add_source_arguments(p) -> None:
 
 def source_from_args(args) -> TopicSelection:
     return TopicSelection(arm=args.arm, image=args.image_topic, joint=args.joint_topic, jaw=args.jaw_topic,
-                          joint_gap=args.max_joint_gap)
+                          joint_gap=args.max_joint_gap, right=args.right_image_topic)
 
 
 def add_threads_argument(p) -> None:

@@ -48,11 +48,10 @@ from graphtrack.io.bag1scan import Bag1Scan
 from graphtrack.io.bag_stamps import JointTable, header_ns, raw_header_ns
 from graphtrack.io.frame import Frame
 from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE, decode_image, noise_span
-from graphtrack.io.topics import IMAGE_TOPICS, TopicSelection, resolve_topics
+from graphtrack.io.topics import IMAGE_TOPICS, RIGHT_IMAGE_TOPICS, TopicSelection, resolve_right, resolve_topics
 
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
-RIGHT_IMAGE_TOPIC = "/stereo/right/image"
-RIGHT_COMPRESSED_TOPIC = "/stereo/right/image/compressed"
+RIGHT_IMAGE_TOPIC, RIGHT_COMPRESSED_TOPIC = RIGHT_IMAGE_TOPICS
 JOINT_TYPE = "sensor_msgs/msg/JointState"
 RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
 #: s, the farthest a frame's nearest joint (jaw) reading may be from its image's stamp,
@@ -154,14 +153,14 @@ class BagSource:
             if t in topics and topics[t][0] != JOINT_TYPE:
                 raise InputError(f"{self.path}: topic {t} has type {topics[t][0]}, expected {JOINT_TYPE}")
         self.has_jaw = topics.get(self.jaw_topic, (None, 0))[1] > 0
-        for topic, typ in ((RIGHT_IMAGE_TOPIC, IMAGE_TYPE), (RIGHT_COMPRESSED_TOPIC, COMPRESSED_TYPE)):
-            if topic in topics and topics[topic][1] > 0:
-                if topics[topic][0] != typ:
-                    self.warnings.append(f"{self.path}: topic {topic} has type {topics[topic][0]}, expected "
-                                         f"{typ}; right images ignored")
-                else:
-                    self.right_topic, self.right_type = topic, typ
-                break
+        topic, note = resolve_right(topics, self.selection, str(self.path))
+        if topic is not None:
+            if topics[topic][0] not in (IMAGE_TYPE, COMPRESSED_TYPE):
+                self.warnings.append(f"{self.path}: topic {topic} has type {topics[topic][0]}, expected "
+                                     f"{IMAGE_TYPE} or {COMPRESSED_TYPE}; right images ignored")
+            else:
+                self.right_topic, self.right_type = topic, topics[topic][0]
+                self.warnings += [note] if note else []
         if self.scan:
             empty = ([], [])
             self._table = (JointTable.build(*self._scan_joints.get(self.joint_topic, empty)),

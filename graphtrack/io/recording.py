@@ -294,6 +294,7 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
                         for name in ("labels.csv", "labels_right.csv"))
     source, notes = find_source(path, topics)
     given = [f"--{k}-topic" for k in ("image", "joint", "jaw") if getattr(topics, k) is not None]
+    given += ["--right-image-topic"] if topics.right is not None else []
     given += ["--max-joint-gap"] if topics.joint_gap is not None else []
     if isinstance(source, FolderSource) and given:
         notes.append(f"{path}: {', '.join(given)} ignored: they are for bags, and this recording is the "

@@ -26,6 +26,7 @@ DEFAULT_ARM = "PSM1"
 #: s: the most --max-joint-gap allows (a reading farther than that belongs to another moment)
 MAX_JOINT_GAP_S = 10.0
 IMAGE_TOPICS = ("/stereo/left/image", "/stereo/left/image/compressed")
+RIGHT_IMAGE_TOPICS = ("/stereo/right/image", "/stereo/right/image/compressed")
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,8 @@ class TopicSelection:
     """The user's choice of arm and topics; None everywhere means "detect it".
 
     arm: PSM1 | PSM2 | PSM3 (the joint topics and the handeye.yaml keys);
-    image / joint / jaw: explicit topic names, overriding the conventions;
+    image / joint / jaw / right: explicit topic names (right: the stereo right image),
+    overriding the conventions;
     joint_gap: s, how far an image may lie from its nearest joint (and jaw) reading,
     overriding the bag's rule (0.2 s, or 3 median periods of a slower topic).
     """
@@ -43,14 +45,15 @@ class TopicSelection:
     joint: str | None = None
     jaw: str | None = None
     joint_gap: float | None = None
+    right: str | None = None
 
     def __post_init__(self):
         if self.arm is not None and self.arm not in ARMS:
             raise InputError(f"--arm: unknown arm {self.arm!r} (choose from {', '.join(ARMS)})")
-        for name in ("image", "joint", "jaw"):
+        for name, flag in (("image", "image"), ("joint", "joint"), ("jaw", "jaw"), ("right", "right-image")):
             t = getattr(self, name)
             if t is not None and not (isinstance(t, str) and t.startswith("/") and len(t) > 1):
-                raise InputError(f"--{name}-topic: a topic name starts with '/', got {t!r}")
+                raise InputError(f"--{flag}-topic: a topic name starts with '/', got {t!r}")
         g = self.joint_gap
         if g is not None and not (isinstance(g, (int, float)) and 0 < g <= MAX_JOINT_GAP_S):
             raise InputError(f"--max-joint-gap: seconds in (0, {MAX_JOINT_GAP_S:g}], got {g!r}")
@@ -115,6 +118,26 @@ def resolve_topics(available: dict[str, tuple[str, int]], sel: TopicSelection, w
         note = (f"{where}: joint topics of {arm} in both dVRK namings ({' and '.join(joint_topics(arm))}); "
                 f"reading {joint} and {jaw}: name others with --joint-topic / --jaw-topic")
     return ResolvedTopics(arm, image, joint, jaw, note)
+
+
+def resolve_right(available: dict[str, tuple[str, int]], sel: TopicSelection, where: str) -> tuple[str | None, str]:
+    """The stereo right image topic of a bag, or None (mono), and a note ("" if none).
+
+    ``--right-image-topic`` if given (it must carry messages); else, when ``--image-topic``
+    names the left image, the same name with its last "left" made "right", if the bag
+    carries it; else the first of RIGHT_IMAGE_TOPICS the bag carries."""
+    present = {t for t, (_, n) in available.items() if n > 0}
+    if sel.right is not None:
+        if sel.right not in present:
+            raise InputError(f"{where}: no messages on --right-image-topic {sel.right}")
+        return sel.right, ""
+    if sel.image is not None and "left" in sel.image:
+        i = sel.image.rindex("left")
+        twin = sel.image[:i] + "right" + sel.image[i + 4:]
+        if twin in present:
+            return twin, (f"{where}: right images from {twin}, the twin of --image-topic {sel.image} "
+                          "(--right-image-topic names another, --mono leaves them out)")
+    return next((t for t in RIGHT_IMAGE_TOPICS if t in present), None), ""
 
 
 def handeye_arm(keys, sel: TopicSelection, where: str) -> str:

@@ -13,11 +13,12 @@ STUDY_VERSION = 1
 #: Options that change a cell's result: a study folder holds one value of each.
 CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
                 "alpha", "beta", "markers", "views", "shaft_end", "search", "edge_bias",
-                "arm", "image_topic", "joint_topic", "jaw_topic", "max_joint_gap")
+                "arm", "image_topic", "joint_topic", "jaw_topic", "max_joint_gap",
+                "right_image_topic")
 #: the value of an option a study.json written before it existed holds
 CELL_OPTION_DEFAULTS = {"shaft_end": True, "search": True, "edge_bias": True,
                         "arm": None, "image_topic": None, "joint_topic": None, "jaw_topic": None,
-                        "max_joint_gap": None}
+                        "max_joint_gap": None, "right_image_topic": None}
 #: the mono / stereo axis: stereo (both images where the recording has a right one),
 #: mono (left only, ``--mono``), both (every cell twice, the mono one keyed "-mono")
 VIEWS = ("stereo", "mono", "both")
@@ -54,7 +55,7 @@ class StudyOptions:
                 "alpha": d.alpha, "beta": d.beta, "markers": d.markers, "views": self.views,
                 "shaft_end": d.shaft_end, "search": e.search, "edge_bias": e.edge_bias,
                 "arm": t.arm, "image_topic": t.image, "joint_topic": t.joint, "jaw_topic": t.jaw,
-                "max_joint_gap": t.joint_gap}
+                "max_joint_gap": t.joint_gap, "right_image_topic": t.right}
 
 
 @dataclass
@@ -100,4 +101,4 @@ class Cell:
         """The arm and bag topics the cell reads."""
         o = self.options
         return TopicSelection(arm=o["arm"], image=o["image_topic"], joint=o["joint_topic"], jaw=o["jaw_topic"],
-                              joint_gap=o["max_joint_gap"])
+                              joint_gap=o["max_joint_gap"], right=o["right_image_topic"])
