@@ -244,7 +244,7 @@ def test_joints_on_another_clock_or_missing_skip_the_frames(tmp_path):
         rec = open_recording(tmp_path / "b" / "seq", **NO_ROBOT, topics=TopicSelection(joint_gap=gap))
         far = [i for i in range(1, 25) if min(i, 25 - i) * 33_333_333 > gap * 1e9]
         assert [f.frame for f in rec.frames() if isinstance(f, FrameError)] == far
-    for bad in (0.0, -1.0, float("nan"), 11.0):
+    for bad in (0.0, -1.0, float("nan"), 11.0, True):
         with pytest.raises(InputError, match=r"--max-joint-gap: seconds in \(0, 10\]"):
             TopicSelection(joint_gap=bad)
 
@@ -270,6 +270,9 @@ def test_a_bag_in_degrees_or_millimetres_is_refused(tmp_path):
     with pytest.raises(InputError, match=r"state_jaw_current: 6 of 6 messages .*jaw = 40 is beyond a full turn"):
         list(open_recording(_bag(tmp_path / "b", jaw_value=40.0), **psm).frames())
     assert len(list(open_recording(_bag(tmp_path / "c"), **psm).frames())) == 6
+    # every jaw message empty (a table without a column): their frames are nan_joints skips, no crash
+    out = list(open_recording(_bag(tmp_path / "d", empty_jaw=range(6)), **psm).frames())
+    assert [f.reason for f in out] == ["nan_joints"] * 6
 
 
 def test_a_jaw_topic_with_several_values_is_refused_and_an_empty_one_is_nan(tmp_path):
@@ -361,6 +364,13 @@ def test_compare_recomputes_a_cell_whose_recording_changed(folder_rec, tmp_path,
     inside = ["compare", rec, "--out", rec / "study", "--estimators", "kinematics"]
     assert main([str(a) for a in inside]) == 0                    # the study inside the recording it reads
     assert "| kinematics | missing" not in (rec / "study" / "table.md").read_text()
+    assert main([str(a) for a in inside]) == 0
+    assert "0 cells computed, 1 reused" in capsys.readouterr().out
+    # a done.json from before other folders were left out of the fingerprint: still reused
+    done = next((rec / "study" / "runs").glob("*/kinematics/done.json"))
+    doc = json.loads(done.read_text())
+    doc["recording"]["run/"] = [4, 1234, 99]
+    done.write_text(json.dumps(doc))
     assert main([str(a) for a in inside]) == 0
     assert "0 cells computed, 1 reused" in capsys.readouterr().out
     joints = (rec / "joints.csv").read_text().splitlines()

@@ -172,8 +172,8 @@ def _merge_bags(left, right, out, left_topic, right_topic, left_as=None):
 
 def test_bag_right_topic_of_another_name(tmp_path):
     """A camera driver's names: --image-topic /endo/left/image_raw finds its twin
-    /endo/right/image_raw (and says so); --right-image-topic names any other; without
-    either, those images are not read (mono)."""
+    /endo/right/image_raw (and says so); --right-image-topic names it too; naming the
+    left image's topic as the right one, or a topic without messages, is refused."""
     from graphtrack.io.topics import TopicSelection
 
     seq = tmp_path / "seq"
@@ -186,19 +186,17 @@ def test_bag_right_topic_of_another_name(tmp_path):
 
     _merge_bags(tmp_path / "l.bag", tmp_path / "r.bag", seq / "s.bag", bag.IMAGE_TOPIC, "/endo/right/image_raw",
                 left_as="/endo/left/image_raw")
-    for sel, stereo, note in ((TopicSelection(image="/endo/left/image_raw"), True, True),
-                              (TopicSelection(image="/endo/left/image_raw", right="/endo/right/image_raw"), True,
-                               False),
-                              (TopicSelection(image="/endo/left/image_raw", right="/endo/left/image_raw"), True,
-                               False)):
+    for sel, note in ((TopicSelection(image="/endo/left/image_raw"), True),
+                      (TopicSelection(image="/endo/left/image_raw", right="/endo/right/image_raw"), False)):
         rec = open_recording(seq, **NO_ROBOT, topics=sel)
         out = list(rec.frames())
-        assert rec.stereo == stereo and all(f.image_right is not None for f in out)
+        assert rec.stereo and all(f.image_right is not None for f in out)
         assert any("twin of --image-topic" in w for w in rec.warnings) == note
-        if sel.right == "/endo/right/image_raw" or sel.right is None:
-            np.testing.assert_array_equal(out[2].image_right, frames[2].image_right)
-    with pytest.raises(InputError, match=r"no messages on --right-image-topic /nope"):
-        open_recording(seq, **NO_ROBOT, topics=TopicSelection(image="/endo/left/image_raw", right="/nope"))
+        np.testing.assert_array_equal(out[2].image_right, frames[2].image_right)
+    for right, why in (("/nope", "no messages on --right-image-topic /nope"),
+                       ("/endo/left/image_raw", "--right-image-topic /endo/left/image_raw is the left image's topic")):
+        with pytest.raises(InputError, match=why):
+            open_recording(seq, **NO_ROBOT, topics=TopicSelection(image="/endo/left/image_raw", right=right))
 
 
 @pytest.mark.parametrize("rectified", [True, False])

@@ -49,6 +49,15 @@ def test_both_namings_read_dvrk1_and_say_so():
     assert resolve_topics({"/stereo/left/image": IMG, "/PSM1/measured_js": JS}, TopicSelection(), "b.bag").note == ""
 
 
+def test_the_right_image_is_never_the_left_one():
+    from graphtrack.io.topics import resolve_right
+
+    topics = {"/stereo/left/image": IMG, "/stereo/right/image": IMG}
+    assert resolve_right(topics, TopicSelection(), "b.bag", "/stereo/left/image") == ("/stereo/right/image", "")
+    # the right camera's topic named as the left image: no right image, not the same one twice
+    assert resolve_right(topics, TopicSelection(image="/stereo/right/image"), "b.bag", "/stereo/right/image")[0] is None
+
+
 def test_overrides_and_their_absence():
     topics = {"/cam/left": IMG, "/my/joints": JS, "/my/jaw": JS}
     r = resolve_topics(topics, TopicSelection(image="/cam/left", joint="/my/joints", jaw="/my/jaw"), "b.bag")

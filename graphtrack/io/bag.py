@@ -153,7 +153,7 @@ class BagSource:
             if t in topics and topics[t][0] != JOINT_TYPE:
                 raise InputError(f"{self.path}: topic {t} has type {topics[t][0]}, expected {JOINT_TYPE}")
         self.has_jaw = topics.get(self.jaw_topic, (None, 0))[1] > 0
-        topic, note = resolve_right(topics, self.selection, str(self.path))
+        topic, note = resolve_right(topics, self.selection, str(self.path), self.image_topic)
         if topic is not None:
             if topics[topic][0] not in (IMAGE_TYPE, COMPRESSED_TYPE):
                 self.warnings.append(f"{self.path}: topic {topic} has type {topics[topic][0]}, expected "

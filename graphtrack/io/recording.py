@@ -159,7 +159,7 @@ class Recording:
         joints, jaw = src.joint_tables()
         check_table(joints.values, np.zeros(len(joints.values)), bounds, False, f"{src.path}: {src.joint_topic}",
                     "messages")
-        if self.has_jaw and bounds is not None:
+        if self.has_jaw and bounds is not None and jaw.values.shape[1]:   # no column: every jaw message empty
             check_table(np.zeros((len(jaw.values), 0)), jaw.values[:, 0], np.zeros(0), True,
                         f"{src.path}: {src.jaw_topic}", "messages")
 
@@ -329,8 +329,9 @@ def _consistency_notes(rec: Recording) -> list[str]:
                      "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
     if rec.calibration.stereo and left_of_left(rec.calibration.T):
         t_mm = np.round(1e3 * np.ravel(rec.calibration.T), 2).tolist()
-        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {t_mm} mm puts the right camera to the left of the left one (X_right = R X_left + T has T_x < 0 for "
-                     "a right camera on the right): are T's sign or the left and right images swapped?")
+        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {t_mm} mm puts the right camera to the left "
+                     "of the left one (X_right = R X_left + T has T_x < 0 for a right camera on the right): "
+                     "are T's sign or the left and right images swapped?")
     for key, cam in (("K1", rec.calibration.left), ("K2", rec.calibration.right)):
         if cam is not None and off_centre(cam):
             notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s principal point "
@@ -358,6 +359,18 @@ def off_centre(cam) -> bool:
     return abs(cx - cam.width / 2) > cam.width / 4 or abs(cy - cam.height / 2) > cam.height / 4
 
 
+def part_of_recording(folder: Path) -> bool:
+    """A recording's own sub-folders: frames/, frames_right/, a ROS 2 bag."""
+    return folder.name in ("frames", "frames_right") or (folder / "metadata.yaml").is_file()
+
+
+def same_recording(stored: dict, path: str | Path) -> bool:
+    """Whether a fingerprint stored earlier (perhaps with other folders in it, as before
+    those were left out) still describes the recording at ``path``."""
+    stored = {k: v for k, v in stored.items() if not k.endswith("/") or part_of_recording(Path(path) / k[:-1])}
+    return stored == fingerprint(path)
+
+
 def fingerprint(path: str | Path) -> dict[str, list[int]]:
     """What identifies a recording folder's content cheaply, to tell a changed recording
     from the one a result was computed on: per top-level file its [size, mtime ns], per
@@ -370,7 +383,7 @@ def fingerprint(path: str | Path) -> dict[str, list[int]]:
             if p.is_file():
                 st = p.stat()
                 out[p.name] = [st.st_size, st.st_mtime_ns]
-            elif p.is_dir() and (p.name in ("frames", "frames_right") or (p / "metadata.yaml").is_file()):
+            elif p.is_dir() and part_of_recording(p):
                 sts = [q.stat() for q in p.iterdir() if q.is_file()]
                 out[p.name + "/"] = [len(sts), sum(s.st_size for s in sts), max((s.st_mtime_ns for s in sts), default=0)]
         except OSError:

@@ -55,7 +55,7 @@ class TopicSelection:
             if t is not None and not (isinstance(t, str) and t.startswith("/") and len(t) > 1):
                 raise InputError(f"--{flag}-topic: a topic name starts with '/', got {t!r}")
         g = self.joint_gap
-        if g is not None and not (isinstance(g, (int, float)) and 0 < g <= MAX_JOINT_GAP_S):
+        if g is not None and not (isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g <= MAX_JOINT_GAP_S):
             raise InputError(f"--max-joint-gap: seconds in (0, {MAX_JOINT_GAP_S:g}], got {g!r}")
 
 
@@ -120,16 +120,20 @@ def resolve_topics(available: dict[str, tuple[str, int]], sel: TopicSelection, w
     return ResolvedTopics(arm, image, joint, jaw, note)
 
 
-def resolve_right(available: dict[str, tuple[str, int]], sel: TopicSelection, where: str) -> tuple[str | None, str]:
+def resolve_right(available: dict[str, tuple[str, int]], sel: TopicSelection, where: str,
+                  left: str) -> tuple[str | None, str]:
     """The stereo right image topic of a bag, or None (mono), and a note ("" if none).
 
-    ``--right-image-topic`` if given (it must carry messages); else, when ``--image-topic``
-    names the left image, the same name with its last "left" made "right", if the bag
-    carries it; else the first of RIGHT_IMAGE_TOPICS the bag carries."""
+    ``--right-image-topic`` if given (it must carry messages and not be ``left``, the
+    left image's topic); else, when ``--image-topic`` names the left image, the same name
+    with its last "left" made "right", if the bag carries it; else the first of
+    RIGHT_IMAGE_TOPICS the bag carries, unless it is the left image's."""
     present = {t for t, (_, n) in available.items() if n > 0}
     if sel.right is not None:
         if sel.right not in present:
             raise InputError(f"{where}: no messages on --right-image-topic {sel.right}")
+        if sel.right == left:
+            raise InputError(f"{where}: --right-image-topic {sel.right} is the left image's topic too")
         return sel.right, ""
     if sel.image is not None and "left" in sel.image:
         i = sel.image.rindex("left")
@@ -137,7 +141,7 @@ def resolve_right(available: dict[str, tuple[str, int]], sel: TopicSelection, wh
         if twin in present:
             return twin, (f"{where}: right images from {twin}, the twin of --image-topic {sel.image} "
                           "(--right-image-topic names another, --mono leaves them out)")
-    return next((t for t in RIGHT_IMAGE_TOPICS if t in present), None), ""
+    return next((t for t in RIGHT_IMAGE_TOPICS if t in present and t != left), None), ""
 
 
 def handeye_arm(keys, sel: TopicSelection, where: str) -> str:

@@ -12,7 +12,7 @@ from pathlib import Path
 from graphtrack.errors import InputError
 from graphtrack.eval.metrics import accumulated_error, tip_error_series
 from graphtrack.io.labels import read_labels
-from graphtrack.io.recording import fingerprint
+from graphtrack.io.recording import same_recording
 from graphtrack.io.trajectory import read_trajectory
 from graphtrack.study.cells import CELL_OPTION_DEFAULTS, Cell
 
@@ -30,7 +30,7 @@ def is_done(cell: Cell) -> bool:
         return False
     # a cell done before an option existed holds that option's default
     stored, wanted = ({**CELL_OPTION_DEFAULTS, **(o or {})} for o in (doc.get("options"), cell.options))
-    if "recording" in doc and Path(cell.path).is_dir() and doc["recording"] != fingerprint(cell.path):
+    if "recording" in doc and Path(cell.path).is_dir() and not same_recording(doc["recording"], cell.path):
         return False
     return stored == wanted and (Path(cell.out) / "metrics.json").is_file()
 
@@ -39,7 +39,7 @@ def recording_notes(cells: list[Cell]) -> list[str]:
     """The lines the cells' runs warned about their recordings (metrics.json's
     ``recording_warnings``), each once, in cell order: a study's cells run quietly."""
     lines: dict[str, None] = {}
-    for cell in cells:
+    for cell in filter(is_done, cells):   # not a failed or out-of-date cell's
         try:
             doc = json.loads((Path(cell.out) / "metrics.json").read_text())
         except (OSError, json.JSONDecodeError):
