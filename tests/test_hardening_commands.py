@@ -265,7 +265,7 @@ def test_a_bag_in_degrees_or_millimetres_is_refused(tmp_path):
 
     psm = {"robot_loader": lambda p: PSM, "expected_joints": 6}
     with pytest.raises(InputError, match=r"rec\.bag: /dvrk/PSM1/state_joint_current: 6 of 6 messages hold readings "
-                                         r"no arm makes .*q3 = 120 is beyond \|q\| <= 1 m"):
+                                         r"no arm makes in radians and metres \(first: message 0, q3 = 120 is beyond \|q\| <= 1 m"):
         list(open_recording(_bag(tmp_path / "a", q=(0.1, 0.1, 120.0, 0.1, 0.1, 0.1)), **psm).frames())
     with pytest.raises(InputError, match=r"state_jaw_current: 6 of 6 messages .*jaw = 40 is beyond a full turn"):
         list(open_recording(_bag(tmp_path / "b", jaw_value=40.0), **psm).frames())

@@ -56,9 +56,10 @@ def out_of_range(joints: np.ndarray, jaw: float, bounds: np.ndarray | None, has_
 
 
 def check_table(joints: np.ndarray, jaw: np.ndarray, bounds: np.ndarray | None, has_jaw: bool, path: Path | str,
-                rows: str = "rows") -> None:
+                rows: str = "rows", item: str = "frame") -> None:
     """InputError naming ``path`` when most ``rows`` of a joint table (N, n) are beyond their
-    bounds: a file in other units, not a few damaged rows (those are per-frame skips)."""
+    bounds: a file in other units, not a few damaged rows (those are per-frame skips); the
+    first such is named as ``item`` with its index."""
     if bounds is None or not len(joints) or np.shape(joints)[1] != len(bounds):
         return
     finite = np.all(np.isfinite(joints), axis=1)
@@ -66,4 +67,4 @@ def check_table(joints: np.ndarray, jaw: np.ndarray, bounds: np.ndarray | None, 
     bad = [k for k, w in enumerate(why) if w is not None]
     if 2 * len(bad) > int(finite.sum()):
         raise InputError(f"{path}: {len(bad)} of {len(joints)} {rows} hold readings no arm makes in radians "
-                         f"and metres (first: frame {bad[0]}, {why[bad[0]]})")
+                         f"and metres (first: {item} {bad[0]}, {why[bad[0]]})")

@@ -158,10 +158,10 @@ class Recording:
         src = self.source
         joints, jaw = src.joint_tables()
         check_table(joints.values, np.zeros(len(joints.values)), bounds, False, f"{src.path}: {src.joint_topic}",
-                    "messages")
+                    "messages", "message")
         if self.has_jaw and bounds is not None and jaw.values.shape[1]:   # no column: every jaw message empty
             check_table(np.zeros((len(jaw.values), 0)), jaw.values[:, 0], np.zeros(0), True,
-                        f"{src.path}: {src.jaw_topic}", "messages")
+                        f"{src.path}: {src.jaw_topic}", "messages", "message")
 
     def frames(self, start: int = 0, expected_joints: int | None = None,
                right: bool = True) -> Iterator[object]:
