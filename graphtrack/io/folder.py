@@ -87,10 +87,6 @@ def _parse_joints_csv(text: str, path: Path):
             np.array(jaw, dtype=float))
 
 
-#: the end of the message of a frame whose row in joints.csv has no image file
-MISSING = "(missing)"
-
-
 class FolderSource:
     """frames/ (or video.mp4) + joints.csv; validated at construction, streamed later.
 
@@ -154,15 +150,15 @@ class FolderSource:
         return self._stamps.copy()
 
     def _images(self, start: int):
-        """Yield (index, BGR image or None, error message) from ``start`` on."""
+        """Yield (index, BGR image or the FrameError of a missing or corrupt one) from ``start`` on."""
         if self.video is None:
             for k in range(start, self.n_images):
                 p = self._files.get(k)
                 if p is None:
-                    yield k, None, f"no image file frames/{k:06d}.* {MISSING}"
+                    yield k, FrameError(k, "missing_image", f"no image file frames/{k:06d}.* (missing)")
                     continue
                 img, why = read_image_file(p)
-                yield k, img, why
+                yield k, (img if why is None else FrameError(k, "corrupt_image", why))
             return
         cap = open_video(self.video)
         if not cap.isOpened():
@@ -177,9 +173,9 @@ class FolderSource:
                 ok, img = (False, None) if ended else cap.read()
                 if not ok:
                     ended = True
-                    yield k, None, f"{self.video.name} has no decodable frame {k}"
+                    yield k, FrameError(k, "corrupt_image", f"{self.video.name} has no decodable frame {k}")
                 else:
-                    yield k, img, None
+                    yield k, img
         finally:
             cap.release()
 
@@ -199,9 +195,9 @@ class FolderSource:
         Frame.image_right: frames_right/ holds the right image of the left image with the
         same name (same row, same stamp); None when it is missing or does not decode, or
         unread with ``right`` False."""
-        for k, img, err in self._images(start):
-            if err is not None:
-                yield FrameError(k, "missing_image" if err.endswith(MISSING) else "corrupt_image", err)
+        for k, img in self._images(start):
+            if isinstance(img, FrameError):
+                yield img
             else:
                 yield Frame(k, float(self._stamps[k]), img, self._joints[k].copy(), float(self._jaw[k]),
                             image_right=self._right(k) if right else None)

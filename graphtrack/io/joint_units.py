@@ -37,23 +37,22 @@ def out_of_range(joints: np.ndarray, jaw: float, bounds: np.ndarray | None, has_
     """Why a (finite) reading is not one of a real arm in radians and metres, naming the
     first joint beyond its bound; None when every joint (and the jaw) is within."""
     q = np.asarray(joints, float).ravel()
-    b = bounds if bounds is not None and len(bounds) == q.size else np.full(q.size, MAX_JOINT)
-    names = [f"q{i + 1}" for i in range(q.size)]
+    loose = bounds is None or len(bounds) != q.size     # the joint types unknown: one loose bound
+    b = np.full(q.size, MAX_JOINT) if loose else bounds
     if has_jaw:
-        q, b, names = np.append(q, jaw), np.append(b, MAX_REVOLUTE_RAD if bounds is not None else MAX_JOINT), \
-            names + ["jaw"]
+        q, b = np.append(q, jaw), np.append(b, MAX_JOINT if loose else MAX_REVOLUTE_RAD)
     bad = np.flatnonzero(np.abs(q) > b)
     if not bad.size:
         return None
     i = int(bad[0])
-    if bounds is None:
-        return f"{names[i]} = {q[i]:.6g} is beyond |q| <= {MAX_JOINT:g} (rad or m)"
+    name = "jaw" if has_jaw and i == q.size - 1 else f"q{i + 1}"
+    if loose:
+        return f"{name} = {q[i]:.6g} is beyond |q| <= {MAX_JOINT:g} (rad or m)"
     if b[i] == MAX_REVOLUTE_RAD:
-        return (f"{names[i]} = {q[i]:.6g} is beyond a full turn (|q| <= {MAX_REVOLUTE_RAD:.4g} rad for a "
+        return (f"{name} = {q[i]:.6g} is beyond a full turn (|q| <= {MAX_REVOLUTE_RAD:.4g} rad for a "
                 "revolute joint): joint angles are radians (degrees?)")
-    return (f"{names[i]} = {q[i]:.6g} is beyond |q| <= {MAX_PRISMATIC_M:g} m for a prismatic joint: "
+    return (f"{name} = {q[i]:.6g} is beyond |q| <= {MAX_PRISMATIC_M:g} m for a prismatic joint: "
             "lengths are metres (millimetres?)")
-
 
 def check_table(joints: np.ndarray, jaw: np.ndarray, bounds: np.ndarray | None, has_jaw: bool, path: Path | str,
                 rows: str = "rows", item: str = "frame") -> None:

@@ -236,7 +236,7 @@ def _default_robot_loader(path: Path):
 def find_source(path: Path, topics: TopicSelection = TopicSelection()) -> tuple[BagSource | FolderSource, list[str]]:
     """Pick the recording in a sequence folder: exactly one bag, else the folder form."""
     bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
-    bags += sorted(p for p in path.iterdir() if p.is_dir() and (p / "metadata.yaml").is_file())
+    bags += sorted(p for p in path.iterdir() if is_ros2_bag(p))
     if not bags:  # a recording killed before rosbag renamed it: salvaged by scanning
         bags = sorted(p for p in path.glob("*.bag.active") if p.is_file())
     folder_form = (path / "frames").is_dir() or (path / "video.mp4").is_file()
@@ -359,9 +359,14 @@ def off_centre(cam) -> bool:
     return abs(cx - cam.width / 2) > cam.width / 4 or abs(cy - cam.height / 2) > cam.height / 4
 
 
+def is_ros2_bag(folder: Path) -> bool:
+    """A ROS 2 bag is a folder holding metadata.yaml (and its storage files)."""
+    return folder.is_dir() and (folder / "metadata.yaml").is_file()
+
+
 def part_of_recording(folder: Path) -> bool:
     """A recording's own sub-folders: frames/, frames_right/, a ROS 2 bag."""
-    return folder.name in ("frames", "frames_right") or (folder / "metadata.yaml").is_file()
+    return folder.name in ("frames", "frames_right") or is_ros2_bag(folder)
 
 
 def same_recording(stored: dict, path: str | Path) -> bool:
