@@ -25,7 +25,7 @@ from graphtrack.errors import InputError
 from graphtrack.threads import DEFAULT_THREADS, limit_threads, set_thread_environment
 
 #: Subcommands in the order ``--help`` lists them.
-COMMANDS = ("demo", "simulate", "track", "refine", "detect", "compare", "robot", "train")
+COMMANDS = ("demo", "simulate", "track", "refine", "detect", "compare", "robot", "calibration", "train")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -1,0 +1,175 @@
+"""A lab's calibration files as the dVRK's tools write them, into camera_calibration.yaml
+and handeye.yaml.
+
+**ROS camera_info YAML** (``camera_calibration``'s ``ost.yaml``, or ``left.yaml`` and
+``right.yaml`` of a stereo calibration; the ``camera_calibration_parsers`` layout):
+``image_width``, ``image_height``, ``camera_matrix``, ``distortion_model``,
+``distortion_coefficients``, ``rectification_matrix`` R_i, ``projection_matrix`` P_i,
+lengths in the calibration's unit (metres by ROS convention). R_i turns camera i's
+frame into the rectified frame, and P_2 projects a point of the LEFT rectified frame into
+the right rectified image with P_2[:, 3] = (f' t_x, f' t_y, 0) (t_x = -baseline), so
+
+    X_right = R_2^T (R_1 X_left + t),   t = (P_2[0,3] / P_2[0,0], P_2[1,3] / P_2[1,1], 0):
+    R = R_2^T R_1,  T = R_2^T t.
+
+A recording of the *rectified* images (``image_rect`` topics) is described by the
+rectified cameras instead: K_i = P_i[:, :3], no distortion, R = I, T = t.
+
+**dVRK camera registration** (``dvrk_camera_registration``'s
+``PSMx-registration-open-cv.json``): ``{"base-frame": {"reference-frame": ..., "transform":
+4x4}}``, the PSM base frame in the camera's OpenCV frame, metres. The registration
+measures the camera through the rectified left image (its projection matrix, no
+distortion), so the transform maps into the left *rectified* frame; for raw images
+the left camera's own frame is camera_T_base = [R_1^T 0; 0 1] . transform.
+
+Every function raises InputError naming the file and the field.
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from graphtrack.errors import InputError, is_number, read_text
+from graphtrack.geometry.camera import Calibration, Camera
+
+#: the distortion models graphtrack's camera (OpenCV's plumb bob) represents
+PLUMB_BOB = ("plumb_bob", "rational_polynomial")
+UNITS_M = {"m": 1.0, "mm": 1e-3}
+
+
+@dataclass
+class RosCamera:
+    """One ROS camera_info YAML: raw intrinsics K, distortion D (5), rectification R (3x3),
+    projection P (3x4), image height and width (px)."""
+
+    K: np.ndarray
+    D: np.ndarray
+    R: np.ndarray
+    P: np.ndarray
+    height: int
+    width: int
+    path: Path
+
+
+def _field(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
+    """doc[key]["data"] (or a plain list): n finite numbers."""
+    v = doc.get(key)
+    if isinstance(v, dict):
+        v = v.get("data")
+    if v is None:
+        raise InputError(f"{path}: missing field '{key}' (a ROS camera_info YAML has camera_matrix, "
+                         "distortion_coefficients, rectification_matrix and projection_matrix)")
+    if not isinstance(v, list) or not all(is_number(x) for x in v):
+        raise InputError(f"{path}: field '{key}' must hold a list of finite numbers")
+    if n and len(v) != n:
+        raise InputError(f"{path}: field '{key}' has {len(v)} values, expected {n}")
+    return np.asarray(v, dtype=float)
+
+
+def read_ros_camera(path: str | Path) -> RosCamera:
+    """Read one ROS camera_info YAML (module doc)."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(read_text(path))
+    except yaml.YAMLError as e:
+        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: expected a ROS camera_info YAML (image_width, camera_matrix, ...)")
+    size = [doc.get("image_height"), doc.get("image_width")]
+    if not all(is_number(s) and float(s).is_integer() and s > 0 for s in size):
+        raise InputError(f"{path}: fields 'image_width' and 'image_height' must be positive integers")
+    model = str(doc.get("distortion_model", "plumb_bob"))
+    if model not in PLUMB_BOB:
+        raise InputError(f"{path}: distortion_model '{model}' is not supported: graphtrack's camera is "
+                         "OpenCV's plumb bob (k1 k2 p1 p2 k3); calibrate with that model")
+    D = _field(doc, "distortion_coefficients", 0, path)
+    if D.size not in (4, 5, 8) or np.any(D[5:] != 0):
+        raise InputError(f"{path}: distortion_coefficients must be k1 k2 p1 p2 [k3] (the rational model's "
+                         f"k4 k5 k6 are not supported), got {D.size} values")
+    D5 = np.zeros(5)
+    D5[: min(5, D.size)] = D[:5]
+    K = _field(doc, "camera_matrix", 9, path).reshape(3, 3)
+    R = _field(doc, "rectification_matrix", 9, path).reshape(3, 3)
+    P = _field(doc, "projection_matrix", 12, path).reshape(3, 4)
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
+        raise InputError(f"{path}: field 'rectification_matrix' is not a rotation matrix")
+    if not (P[0, 0] > 0 and P[1, 1] > 0):
+        raise InputError(f"{path}: field 'projection_matrix' has no positive focal lengths")
+    return RosCamera(K, D5, R, P, int(size[0]), int(size[1]), path)
+
+
+def _baseline(cam: RosCamera) -> np.ndarray:
+    """t = (P[0,3] / P[0,0], P[1,3] / P[1,1], 0): the camera's offset in the rectified frame."""
+    return np.array([cam.P[0, 3] / cam.P[0, 0], cam.P[1, 3] / cam.P[1, 1], 0.0])
+
+
+def calibration_from_ros(left: RosCamera, right: RosCamera | None = None, rectified: bool = False,
+                         unit: str = "m") -> Calibration:
+    """camera_calibration.yaml's contents from ROS camera_info YAMLs (module doc): the raw
+    cameras (K, D; R = R_2^T R_1, T = R_2^T t), or with ``rectified`` the rectified ones.
+    ``unit``: the calibration's length unit ("m" or "mm"). Calibration.T is in metres."""
+    def camera(c: RosCamera) -> Camera:
+        if rectified:
+            return Camera(c.P[:, :3].copy(), np.zeros(5), left.height, left.width)
+        return Camera(c.K.copy(), c.D.copy(), left.height, left.width)
+
+    if right is None:
+        return Calibration(camera(left))
+    if (right.height, right.width) != (left.height, left.width):
+        raise InputError(f"{right.path}: image size {right.width}x{right.height} differs from {left.path}'s "
+                         f"{left.width}x{left.height}; both cameras of a recording share ImageSize")
+    if np.any(_baseline(left) != 0):
+        raise InputError(f"{left.path}: its projection_matrix holds a baseline (P[0,3], P[1,3] not 0): it is "
+                         "the right (second) camera's file; give the left camera's first")
+    t = _baseline(right) * UNITS_M[unit]
+    if not np.any(t != 0):
+        raise InputError(f"{right.path}: its projection_matrix holds no baseline (P[0,3] = P[1,3] = 0): "
+                         "not the right camera of a stereo calibration")
+    if rectified:
+        return Calibration(camera(left), camera(right), np.eye(3), t)
+    return Calibration(camera(left), camera(right), right.R.T @ left.R, right.R.T @ t)
+
+
+def read_dvrk_registration(path: str | Path, unit: str = "m") -> np.ndarray:
+    """The 4x4 camera-from-base transform (metres) of a dVRK camera registration JSON
+    (``{"base-frame": {"transform": 4x4}}``, module doc)."""
+    path = Path(path)
+    try:
+        doc = json.loads(read_text(path))
+    except json.JSONDecodeError as e:
+        raise InputError(f"{path}: not valid JSON ({e.msg}, line {e.lineno})") from None
+    frame = doc.get("base-frame") if isinstance(doc, dict) else None
+    M = frame.get("transform") if isinstance(frame, dict) else None
+    if M is None:
+        raise InputError(f"{path}: missing 'base-frame' -> 'transform' (a dVRK camera registration's "
+                         "PSMx-registration-open-cv.json)")
+    if (not isinstance(M, list) or len(M) != 4
+            or not all(isinstance(r, list) and len(r) == 4 and all(is_number(x) for x in r) for r in M)):
+        raise InputError(f"{path}: 'base-frame' -> 'transform' must be a 4x4 list of numbers")
+    T = np.asarray(M, dtype=float)
+    R = T[:3, :3]
+    if not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-4) \
+            or np.linalg.det(R) <= 0:
+        raise InputError(f"{path}: 'base-frame' -> 'transform' is not a rigid transform (a rotation, a "
+                         "translation, last row 0 0 0 1)")
+    T[:3, 3] *= UNITS_M[unit]
+    return T
+
+
+def arm_of(path: str | Path) -> str | None:
+    """PSM1, PSM2 or PSM3 when the file's name starts with it (``PSM2-registration-open-cv.json``)."""
+    m = re.match(r"(PSM[123])(?![0-9])", Path(path).name, re.IGNORECASE)
+    return m.group(1).upper() if m else None
+
+
+def handeye_to_raw(camera_T_base: np.ndarray, left: RosCamera) -> np.ndarray:
+    """A transform into the left rectified frame -> into the left camera's own (raw) frame:
+    [R_1^T 0; 0 1] . camera_T_base."""
+    C = np.eye(4)
+    C[:3, :3] = left.R.T
+    return C @ camera_T_base

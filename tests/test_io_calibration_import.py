@@ -1,0 +1,149 @@
+"""graphtrack calibration: ROS camera_info YAMLs and the dVRK camera registration into the
+recording's calibration files; OpenCV's stereoRectify and projectPoints are the oracles."""
+import json
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from graphtrack.cli import main
+from graphtrack.errors import InputError
+from graphtrack.geometry.camera import load_calibration
+from graphtrack.io import calibration_import as ci
+from graphtrack.io.handeye import load_handeye
+
+W, H = 960, 540
+K1 = np.array([[800.0, 0, 470], [0, 805, 275], [0, 0, 1]])
+K2 = np.array([[810.0, 0, 490], [0, 808, 265], [0, 0, 1]])
+D1 = np.array([-0.21, 0.11, 1e-3, -2e-3, 0.01])
+D2 = np.array([-0.19, 0.09, -1e-3, 1e-3, 0.0])
+R_TRUE = cv2.Rodrigues(np.array([0.01, -0.03, 0.005]))[0]
+T_TRUE_M = np.array([-0.0051, 0.0002, 0.0003])      # the right camera 5.1 mm to the right
+
+
+def ros_yaml(path, K, D, R, P, name):
+    """A camera_info YAML in camera_calibration_parsers' layout."""
+    doc = {"image_width": W, "image_height": H, "camera_name": name,
+           "camera_matrix": {"rows": 3, "cols": 3, "data": K.ravel().tolist()},
+           "distortion_model": "plumb_bob",
+           "distortion_coefficients": {"rows": 1, "cols": len(D), "data": np.ravel(D).tolist()},
+           "rectification_matrix": {"rows": 3, "cols": 3, "data": R.ravel().tolist()},
+           "projection_matrix": {"rows": 3, "cols": 4, "data": P.ravel().tolist()}}
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+@pytest.fixture
+def stereo(tmp_path):
+    """left.yaml, right.yaml as a ROS stereo calibration writes them (OpenCV's rectification),
+    and OpenCV's R1, P2."""
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(K1, D1, K2, D2, (W, H), R_TRUE, T_TRUE_M.reshape(3, 1), alpha=0)
+    left = ros_yaml(tmp_path / "left.yaml", K1, D1, R1, P1, "left")
+    right = ros_yaml(tmp_path / "right.yaml", K2, D2, R2, P2, "right")
+    return left, right, R1, P2
+
+
+def test_raw_stereo_recovers_the_extrinsics_and_projects_as_opencv(stereo):
+    left, right, *_ = stereo
+    calib = ci.calibration_from_ros(ci.read_ros_camera(left), ci.read_ros_camera(right))
+    np.testing.assert_allclose(calib.R, R_TRUE, atol=1e-9)
+    np.testing.assert_allclose(calib.T, T_TRUE_M, atol=1e-12)
+    np.testing.assert_allclose(calib.left.K, K1)
+    np.testing.assert_allclose(calib.right.dist, D2)
+    X = np.array([[0.01, -0.004, 0.09], [-0.012, 0.006, 0.12]])
+    want = cv2.projectPoints(X, cv2.Rodrigues(R_TRUE)[0], T_TRUE_M, K2, D2)[0].reshape(-1, 2)
+    np.testing.assert_allclose(calib.project_right(X), want, atol=1e-6)
+
+
+def test_rectified_pair_projects_as_the_projection_matrices(stereo):
+    left, right, R1, P2 = stereo
+    calib = ci.calibration_from_ros(ci.read_ros_camera(left), ci.read_ros_camera(right), rectified=True)
+    np.testing.assert_allclose(calib.R, np.eye(3))
+    assert np.all(calib.left.dist == 0) and np.all(calib.right.dist == 0)
+    X = np.array([[0.01, -0.004, 0.09], [-0.012, 0.006, 0.12]])   # in the left rectified frame
+    uvw = np.c_[X, np.ones(2)] @ P2.T
+    np.testing.assert_allclose(calib.project_right(X), uvw[:, :2] / uvw[:, 2:], atol=1e-9)
+    # the baseline: 5.1 mm and a little, as the extrinsics' length
+    assert np.linalg.norm(calib.T) == pytest.approx(np.linalg.norm(T_TRUE_M), rel=1e-9)
+
+
+def registration_json(path, T):
+    # as dvrk_camera_registration writes it: a brace, a "base-frame" line, a brace
+    data = {"reference-frame": "left_camera", "transform": np.asarray(T).tolist()}
+    path.write_text("{\n" + '"base-frame": ' + json.dumps(data) + "\n}\n")
+    return path
+
+
+def test_cli_writes_both_files_and_the_registration_into_the_raw_left_frame(stereo, tmp_path, capsys):
+    left, right, R1, _ = stereo
+    rect_T_base = np.eye(4)
+    rect_T_base[:3, :3] = cv2.Rodrigues(np.array([2.2, 0.3, -0.4]))[0]
+    rect_T_base[:3, 3] = [0.02, -0.01, 0.11]
+    reg = registration_json(tmp_path / "PSM2-registration-open-cv.json", rect_T_base)
+    seq = tmp_path / "seq"
+    assert main(["calibration", "--out", str(seq), "--ros", str(left), str(right),
+                 "--dvrk-registration", str(reg)]) == 0
+    assert "PSM2" in capsys.readouterr().err
+    calib = load_calibration(seq / "camera_calibration.yaml")
+    np.testing.assert_allclose(calib.T, T_TRUE_M, atol=1e-12)
+    E = load_handeye(seq / "handeye.yaml", "PSM2")
+    # a base-frame point: where the rectified left camera sees it, the raw left camera sees it turned by R1^T
+    X = np.array([0.01, 0.02, -0.03, 1.0])
+    np.testing.assert_allclose(E @ X, np.r_[R1.T @ (rect_T_base @ X)[:3], 1.0], atol=1e-9)
+    assert not list(seq.glob("*.partial"))
+    # written files are not replaced without --overwrite
+    assert main(["calibration", "--out", str(seq), "--ros", str(left)]) == 2
+    assert "already exists" in capsys.readouterr().err
+
+
+def test_rectified_keeps_the_registration_as_measured(stereo, tmp_path):
+    left, right, *_ = stereo
+    T = np.eye(4)
+    T[:3, 3] = [0.0, 0.01, 0.1]
+    reg = registration_json(tmp_path / "reg.json", T)
+    seq = tmp_path / "seq"
+    assert main(["calibration", "--out", str(seq), "--ros", str(left), str(right), "--rectified",
+                 "--dvrk-registration", str(reg), "--arm", "PSM3"]) == 0
+    np.testing.assert_allclose(load_handeye(seq / "handeye.yaml", "PSM3"), T, atol=1e-12)
+
+
+def test_swapped_files_and_unsupported_models_name_the_file(stereo, tmp_path):
+    left, right, *_ = stereo
+    with pytest.raises(InputError, match="right.yaml.*the right .second. camera's file"):
+        ci.calibration_from_ros(ci.read_ros_camera(right), ci.read_ros_camera(left))
+    doc = yaml.safe_load(left.read_text())
+    doc["distortion_model"] = "equidistant"
+    bad = tmp_path / "fisheye.yaml"
+    bad.write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match="fisheye.yaml: distortion_model 'equidistant'"):
+        ci.read_ros_camera(bad)
+    del doc["projection_matrix"]
+    doc["distortion_model"] = "plumb_bob"
+    bad.write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match="fisheye.yaml: missing field 'projection_matrix'"):
+        ci.read_ros_camera(bad)
+
+
+def test_bad_registrations_exit_2_with_nothing_written(stereo, tmp_path, capsys):
+    left, *_ = stereo
+    seq = tmp_path / "seq"
+    skew = np.eye(4)
+    skew[0, 1] = 0.5
+    reg = registration_json(tmp_path / "PSM1-reg.json", skew)
+    assert main(["calibration", "--out", str(seq), "--ros", str(left), "--dvrk-registration", str(reg)]) == 2
+    assert "not a rigid transform" in capsys.readouterr().err
+    # a registration in millimetres read as metres: 110 m from the base, refused with the unit named
+    T = np.eye(4)
+    T[:3, 3] = [20.0, -10.0, 110.0]
+    reg = registration_json(tmp_path / "PSM1-mm.json", T)
+    assert main(["calibration", "--out", str(seq), "--ros", str(left), "--dvrk-registration", str(reg)]) == 2
+    err = capsys.readouterr().err
+    assert "handeye.yaml" in err and "--length-unit" in err and ".partial" not in err
+    assert not seq.exists() or not any(seq.iterdir())
+    assert main(["calibration", "--out", str(seq), "--ros", str(left), "--dvrk-registration", str(reg),
+                 "--length-unit", "mm"]) == 0
+    assert np.linalg.norm(load_handeye(seq / "handeye.yaml", "PSM1")[:3, 3]) == pytest.approx(np.sqrt(20 ** 2 + 10 ** 2 + 110 ** 2) / 1000)
+    reg2 = registration_json(tmp_path / "registration.json", np.eye(4))
+    assert main(["calibration", "--out", str(tmp_path / "s2"), "--dvrk-registration", str(reg2)]) == 2
+    assert "--arm" in capsys.readouterr().err
