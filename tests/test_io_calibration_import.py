@@ -147,3 +147,55 @@ def test_bad_registrations_exit_2_with_nothing_written(stereo, tmp_path, capsys)
     reg2 = registration_json(tmp_path / "registration.json", np.eye(4))
     assert main(["calibration", "--out", str(tmp_path / "s2"), "--dvrk-registration", str(reg2)]) == 2
     assert "--arm" in capsys.readouterr().err
+
+
+def write_camera_info_bag(path, cams, ros2=False):
+    """A bag with one CameraInfo message per (topic, K, D, R, P), as a camera driver publishes it."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE if ros2 else Stores.ROS1_NOETIC)
+    T = ts.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=1, nanosec=0)
+    header = (T["std_msgs/msg/Header"](stamp=stamp, frame_id="cam") if ros2
+              else T["std_msgs/msg/Header"](seq=0, stamp=stamp, frame_id="cam"))
+    roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    typ = "sensor_msgs/msg/CameraInfo"
+    if ros2:
+        from rosbags.rosbag2 import Writer
+        writer, ser = Writer(path, version=8), ts.serialize_cdr
+    else:
+        from rosbags.rosbag1 import Writer
+        writer, ser = Writer(path), ts.serialize_ros1
+    with writer:
+        for topic, K, D, R, P in cams:
+            c = writer.add_connection(topic, typ, typestore=ts)
+            fields = dict(zip("dkrp" if ros2 else "DKRP", (np.asarray(D, float), K.ravel(), R.ravel(), P.ravel())))
+            msg = T[typ](header=header, height=H, width=W, distortion_model="plumb_bob", binning_x=0, binning_y=0,
+                         roi=roi, **fields)
+            writer.write(c, 1_000_000_000, ser(msg, typ))
+    return path
+
+
+@pytest.mark.parametrize("ros2", [False, True])
+def test_bag_camera_info_gives_the_yamls_calibration(stereo, tmp_path, ros2):
+    left, right, R1, P2 = stereo
+    L, Rr = (ci.read_ros_camera(p) for p in (left, right))
+    bag = write_camera_info_bag(tmp_path / ("rec" if ros2 else "rec.bag"),
+                                [("/jhu_daVinci/left/camera_info", L.K, L.D, L.R, L.P),
+                                 ("/jhu_daVinci/right/camera_info", Rr.K, Rr.D, Rr.R, Rr.P)], ros2)
+    seq = tmp_path / "seq"
+    assert main(["calibration", "--out", str(seq), "--bag", str(bag)]) == 0
+    calib = load_calibration(seq / "camera_calibration.yaml")
+    np.testing.assert_allclose(calib.R, R_TRUE, atol=1e-9)
+    np.testing.assert_allclose(calib.T, T_TRUE_M, atol=1e-12)
+    # named topics; a topic the bag lacks is named in the error
+    cams = ci.read_bag_cameras(bag, ["/jhu_daVinci/left/camera_info"])
+    assert len(cams) == 1 and np.allclose(cams[0].K, K1)
+    with pytest.raises(InputError, match="no sensor_msgs/msg/CameraInfo topic /stereo/left/camera_info"):
+        ci.read_bag_cameras(bag, ["/stereo/left/camera_info"])
+
+
+def test_an_uncalibrated_camera_info_is_refused(tmp_path):
+    bag = write_camera_info_bag(tmp_path / "raw.bag", [("/cam/camera_info", np.zeros(9), [], np.eye(3), np.zeros(12))])
+    with pytest.raises(InputError, match="camera_matrix is all zero"):
+        ci.read_bag_cameras(bag)

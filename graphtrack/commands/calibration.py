@@ -2,10 +2,11 @@
 camera_calibration.yaml and handeye.yaml from the files the dVRK's calibration tools write.
 
 --ros takes ROS camera_calibration's camera_info YAMLs (ost.yaml, or left.yaml and
-right.yaml of a stereo calibration: the left camera's first); --dvrk-registration takes
+right.yaml of a stereo calibration: the left camera's first), --bag the same from a
+bag's camera_info messages; --dvrk-registration takes
 dvrk_camera_registration's PSMx-registration-open-cv.json (the PSM base in the camera's
-frame). The registration was measured through the rectified left image: with --ros it is
-turned into the raw left camera's frame, or kept in the rectified one with --rectified
+frame). The registration was measured through the rectified left image: with the cameras
+(--ros or --bag) it is turned into the raw left camera's frame, or kept in the rectified one with --rectified
 (a recording of the rectified image topics). Lengths are read in --length-unit (ROS and
 the dVRK: metres) and written as the recording format wants them (mm). Each file written
 is checked by loading it back.
@@ -25,10 +26,11 @@ from graphtrack.io.topics import ARMS
 
 def _targets(args) -> dict[str, Path]:
     out = Path(args.out)
-    names = (["camera_calibration.yaml"] if args.ros else []) + (["handeye.yaml"] if args.dvrk_registration else [])
+    names = ((["camera_calibration.yaml"] if args.ros or args.bag else [])
+             + (["handeye.yaml"] if args.dvrk_registration else []))
     if not names:
-        raise InputError("nothing to write: give --ros (camera_calibration.yaml) and/or --dvrk-registration "
-                         "(handeye.yaml)")
+        raise InputError("nothing to write: give --ros or --bag (camera_calibration.yaml) and/or "
+                         "--dvrk-registration (handeye.yaml)")
     targets = {n: out / n for n in names}
     for p in targets.values():
         if p.exists() and not args.overwrite:
@@ -62,12 +64,18 @@ def _write_all(files: dict[Path, tuple], unit: str) -> None:
 
 
 def run(args) -> int:
-    if args.ros and len(args.ros) > 2:
-        raise InputError(f"--ros takes one file (mono) or two (left, right), got {len(args.ros)}")
-    if args.rectified and not args.ros:
-        raise InputError("--rectified describes the rectified cameras of --ros: give --ros")
+    for name, value in (("--ros", args.ros), ("--camera-info-topic", args.camera_info_topic)):
+        if value and len(value) > 2:
+            raise InputError(f"{name} takes one (mono) or two (left, right), got {len(value)}")
+    if args.ros and args.bag:
+        raise InputError("give the cameras once: --ros YAMLs or --bag's camera_info, not both")
+    if args.camera_info_topic and not args.bag:
+        raise InputError("--camera-info-topic names topics of --bag: give --bag")
+    if args.rectified and not (args.ros or args.bag):
+        raise InputError("--rectified describes the rectified cameras of --ros or --bag: give one")
     targets = _targets(args)
-    cams = [ci.read_ros_camera(p) for p in args.ros or []]
+    cams = ([ci.read_ros_camera(p) for p in args.ros] if args.ros else
+            ci.read_bag_cameras(args.bag, args.camera_info_topic) if args.bag else [])
     calib = ci.calibration_from_ros(*cams, rectified=args.rectified, unit=args.length_unit) if cams else None
     handeye = arm = None
     if args.dvrk_registration:
@@ -81,7 +89,7 @@ def run(args) -> int:
     files = {}
     if calib is not None:
         files[targets["camera_calibration.yaml"]] = (lambda p: save_calibration(p, calib), load_calibration,
-                                                     " and ".join(args.ros))
+                                                     " and ".join(args.ros or [str(args.bag)]))
     if handeye is not None:
         files[targets["handeye.yaml"]] = (lambda p: save_handeye(p, handeye, arm), lambda p: load_handeye(p, arm),
                                           args.dvrk_registration)
@@ -93,8 +101,8 @@ def run(args) -> int:
         frame = "rectified left" if args.rectified or not cams else "left"
         print(f"wrote {targets['handeye.yaml']}: {arm} base in the {frame} camera's frame", file=sys.stderr)
         if not cams:
-            print("graphtrack: note: without --ros the registration stays in the rectified left camera's frame; "
-                  "for a recording of raw images pass the left camera's YAML with --ros", file=sys.stderr)
+            print("graphtrack: note: without the cameras (--ros, --bag) the registration stays in the rectified left camera's frame; "
+                  "for a recording of raw images give the left camera with --ros or --bag", file=sys.stderr)
     return 0
 
 
@@ -106,6 +114,12 @@ def add_parser(sub) -> None:
                    help="recording folder to write camera_calibration.yaml and handeye.yaml into")
     p.add_argument("--ros", nargs="+", metavar="YAML", default=None,
                    help="ROS camera_info YAML: one (mono) or the left and the right camera's (stereo) (default: no camera_calibration.yaml)")
+    p.add_argument("--bag", metavar="BAG", default=None,
+                   help="read the cameras from this bag's camera_info messages instead (a ROS 1 .bag or a ROS 2 "
+                        "bag folder) (default: not read)")
+    p.add_argument("--camera-info-topic", nargs="+", metavar="TOPIC", default=None,
+                   help="--bag's left (and right) camera_info topic (default: the bag's only one, or the ones "
+                        "with left and right in their names)")
     p.add_argument("--rectified", action="store_true",
                    help="the recording holds the rectified images: describe the rectified cameras")
     p.add_argument("--dvrk-registration", metavar="JSON", default=None,

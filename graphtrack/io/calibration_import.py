@@ -5,7 +5,9 @@ and handeye.yaml.
 ``right.yaml`` of a stereo calibration; the ``camera_calibration_parsers`` layout):
 ``image_width``, ``image_height``, ``camera_matrix``, ``distortion_model``,
 ``distortion_coefficients``, ``rectification_matrix`` R_i, ``projection_matrix`` P_i,
-lengths in the calibration's unit (metres by ROS convention). R_i turns camera i's
+lengths in the calibration's unit (metres by ROS convention); or the same fields of the
+first ``sensor_msgs/CameraInfo`` message on a bag's left (and right) camera_info topic,
+which a ROS camera driver publishes from that calibration. R_i turns camera i's
 frame into the rectified frame, and P_2 projects a point of the LEFT rectified frame into
 the right rectified image with P_2[:, 3] = (f' t_x, f' t_y, 0) (t_x = -baseline), so
 
@@ -80,6 +82,11 @@ def read_ros_camera(path: str | Path) -> RosCamera:
         raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a ROS camera_info YAML (image_width, camera_matrix, ...)")
+    return _ros_camera(doc, path)
+
+
+def _ros_camera(doc: dict, path: Path) -> RosCamera:
+    """A camera_info mapping (the YAML's layout) -> RosCamera; ``path`` names it in errors."""
     size = [doc.get("image_height"), doc.get("image_width")]
     if not all(is_number(s) and float(s).is_integer() and s > 0 for s in size):
         raise InputError(f"{path}: fields 'image_width' and 'image_height' must be positive integers")
@@ -87,13 +94,15 @@ def read_ros_camera(path: str | Path) -> RosCamera:
     if model not in PLUMB_BOB:
         raise InputError(f"{path}: distortion_model '{model}' is not supported: graphtrack's camera is "
                          "OpenCV's plumb bob (k1 k2 p1 p2 k3); calibrate with that model")
+    K = _field(doc, "camera_matrix", 9, path).reshape(3, 3)
+    if not np.any(K):
+        raise InputError(f"{path}: camera_matrix is all zero: the camera was not calibrated when this was written")
     D = _field(doc, "distortion_coefficients", 0, path)
     if D.size not in (4, 5, 8) or np.any(D[5:] != 0):
         raise InputError(f"{path}: distortion_coefficients must be k1 k2 p1 p2 [k3] (the rational model's "
                          f"k4 k5 k6 are not supported), got {D.size} values")
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D[:5]
-    K = _field(doc, "camera_matrix", 9, path).reshape(3, 3)
     R = _field(doc, "rectification_matrix", 9, path).reshape(3, 3)
     P = _field(doc, "projection_matrix", 12, path).reshape(3, 4)
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
@@ -101,6 +110,67 @@ def read_ros_camera(path: str | Path) -> RosCamera:
     if not (P[0, 0] > 0 and P[1, 1] > 0):
         raise InputError(f"{path}: field 'projection_matrix' has no positive focal lengths")
     return RosCamera(K, D5, R, P, int(size[0]), int(size[1]), path)
+
+
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+def _camera_info_topics(infos: list[str], chosen: list[str] | None, where: str) -> list[str]:
+    """The left (and right) camera_info topics: ``chosen``, else the bag's only one, else
+    the one with ``left`` and the one with ``right`` in its name."""
+    if chosen:
+        for t in chosen:
+            if t not in infos:
+                raise InputError(f"{where}: no {CAMERA_INFO_TYPE} topic {t} (it has: {', '.join(infos) or 'none'})")
+        return list(chosen)
+    if len(infos) == 1:
+        return infos
+    left = [t for t in infos if "left" in t.lower()]
+    right = [t for t in infos if "right" in t.lower()]
+    if len(left) == 1 and len(right) <= 1:
+        return left + right
+    raise InputError(f"{where}: {len(infos)} {CAMERA_INFO_TYPE} topics ({', '.join(infos) or 'none'}) and no "
+                     "single left one: name the left (and right) one with --camera-info-topic")
+
+
+def read_bag_cameras(path: str | Path, topics: list[str] | None = None) -> list[RosCamera]:
+    """The first CameraInfo message of the left (and right) camera_info topic of a ROS 1
+    bag or ROS 2 bag folder, as :func:`read_ros_camera` reads a YAML (ROS 1 fields K, D,
+    R, P; ROS 2 k, d, r, p)."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    path = Path(path)
+    store = get_typestore(Stores.ROS2_HUMBLE if path.is_dir() else Stores.ROS1_NOETIC)
+    try:
+        with AnyReader([path], default_typestore=store) as r:
+            infos = [n for n, c in r.topics.items() if c.msgtype == CAMERA_INFO_TYPE and c.msgcount]
+            chosen = _camera_info_topics(infos, topics, str(path))
+            cams = []
+            for topic in chosen:
+                conn = [c for c in r.connections if c.topic == topic]
+                _, _, raw = next(r.messages(connections=conn))
+                cams.append(_from_message(r.deserialize(raw, CAMERA_INFO_TYPE), f"{path} ({topic})"))
+            return cams
+    except InputError:
+        raise
+    except Exception as e:  # noqa: BLE001 - rosbags raises many types on damaged or foreign files
+        raise InputError(f"{path}: cannot read the bag's camera_info ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+
+
+def _from_message(msg, where: str) -> RosCamera:
+    """A CameraInfo message -> the YAML layout -> :func:`_ros_camera`."""
+    def field(name):
+        v = getattr(msg, name, None)
+        return getattr(msg, name.lower()) if v is None else v
+
+    doc = {"image_width": int(msg.width), "image_height": int(msg.height),
+           "distortion_model": str(msg.distortion_model or "plumb_bob"),
+           "camera_matrix": [float(x) for x in field("K")],
+           "distortion_coefficients": [float(x) for x in field("D")],
+           "rectification_matrix": [float(x) for x in field("R")],
+           "projection_matrix": [float(x) for x in field("P")]}
+    return _ros_camera(doc, Path(where))
 
 
 def _baseline(cam: RosCamera) -> np.ndarray:
