@@ -42,6 +42,27 @@ def read_text(path) -> str:
         raise InputError(f"{path}: not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
 
 
+def read_yaml(path):
+    """The parsed YAML of a configuration file (InputError naming the file when it is
+    not YAML), as OpenCV's FileStorage writes it too: its ``%YAML:1.0`` first line
+    (not a YAML directive) is dropped and an ``!!opencv-matrix`` node reads as the
+    plain mapping it is (rows, cols, dt, data)."""
+    import re
+
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        pass
+
+    Loader.add_constructor("tag:yaml.org,2002:opencv-matrix",
+                           lambda loader, node: loader.construct_mapping(node, deep=True))
+    text = re.sub(r"^%YAML:1\.0[ \t]*\r?\n", "", read_text(path))
+    try:
+        return yaml.load(text, Loader=Loader)   # noqa: S506 - a SafeLoader with one more mapping tag
+    except yaml.YAMLError as e:
+        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+
+
 def is_number(v) -> bool:
     """A finite real number as a parser of JSON/YAML gives it: an int (within float range)
     or a float, never a bool or a string."""

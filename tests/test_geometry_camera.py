@@ -67,6 +67,28 @@ def test_calibration_roundtrip_mono_and_stereo(tmp_path):
     np.testing.assert_allclose(s.T, [-0.0042, 0, 0])
 
 
+@pytest.mark.parametrize("header", ["%YAML:1.0", None])   # OpenCV 4 writes the first; 5 a real directive
+def test_calibration_as_opencv_filestorage_writes_it(tmp_path, header):
+    """A stereoCalibrate result saved by cv2.FileStorage under the format's keys (matrices
+    as !!opencv-matrix, ImageSize as a 1x2 matrix) reads as written."""
+    p = tmp_path / "camera_calibration.yaml"
+    R = cv2.Rodrigues(np.array([0.01, 0.02, -0.01]))[0]
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
+    for key, value in (("ImageSize", np.array([[540, 960]], np.int32)), ("K1", K), ("D1", D.reshape(1, 5)),
+                       ("K2", K), ("D2", D.reshape(1, 5)), ("R", R), ("T", np.array([[-4.8], [0.1], [0.2]]))):
+        fs.write(key, value)
+    fs.release()
+    if header:
+        text = p.read_text().splitlines()
+        p.write_text("\n".join([header] + text[1:]) + "\n")
+    c = load_calibration(p)
+    np.testing.assert_array_equal(c.left.K, K)
+    np.testing.assert_array_equal(c.right.dist, D)
+    np.testing.assert_allclose(c.R, R, atol=1e-15)
+    np.testing.assert_allclose(c.T, [-0.0048, 0.0001, 0.0002])
+    assert (c.left.height, c.left.width) == (540, 960)
+
+
 @pytest.mark.parametrize("text,needle", [
     ("K1: {data: [1,0,0,0,1,0,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n", "ImageSize"),
     ("ImageSize: [540, 960]\nD1: {data: [0,0,0,0,0]}\n", "K1"),

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import yaml
 
-from graphtrack.errors import InputError, is_number, read_text
+from graphtrack.errors import InputError, is_number, read_yaml
 
 
 @dataclass
@@ -247,6 +247,8 @@ def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
 
 def _image_size(doc: dict, path: Path) -> tuple[int, int]:
     size = doc.get("ImageSize")
+    if isinstance(size, dict):   # an OpenCV-style mapping, as the matrices may be
+        size = size.get("data")
     if (not isinstance(size, list) or len(size) != 2
             or not all(is_number(x) and float(x).is_integer() and 0 < x <= MAX_IMAGE_SIDE for x in size)):
         raise InputError(f"{path}: ImageSize must be [height, width], two integers in "
@@ -278,10 +280,7 @@ MIN_BASELINE_MM = 0.5
 def load_calibration(path: str | Path) -> Calibration:
     """Read camera_calibration.yaml (format doc); raise InputError naming file and key."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(read_text(path))
-    except yaml.YAMLError as e:
-        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    doc = read_yaml(path)
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping of keys")
     h, w = _image_size(doc, path)

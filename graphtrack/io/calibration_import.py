@@ -34,9 +34,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from graphtrack.errors import InputError, is_number, read_text
+from graphtrack.errors import InputError, is_number, read_text, read_yaml
 from graphtrack.geometry.camera import Calibration, Camera
 
 #: the distortion models graphtrack's camera (OpenCV's plumb bob) represents
@@ -76,10 +75,7 @@ def _field(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
 def read_ros_camera(path: str | Path) -> RosCamera:
     """Read one ROS camera_info YAML (module doc)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(read_text(path))
-    except yaml.YAMLError as e:
-        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    doc = read_yaml(path)
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a ROS camera_info YAML (image_width, camera_matrix, ...)")
     return _ros_camera(doc, path)

@@ -11,25 +11,18 @@ other length in graphtrack.
 """
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from graphtrack.errors import InputError, is_number, read_text
+from graphtrack.errors import InputError, is_number, read_yaml
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
 from graphtrack.io.topics import TopicSelection, handeye_arm
 
 
 def _read_yaml(path: Path) -> dict:
-    text = read_text(path)
-    # OpenCV FileStorage writes a "%YAML:1.0" directive that PyYAML rejects
-    text = re.sub(r"^%YAML:1\.0\s*\n", "", text)
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    doc = read_yaml(path)
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping of keys like 'PSM1_tvec'")
     return doc
