@@ -110,7 +110,7 @@ def test_rectified_keeps_the_registration_as_measured(stereo, tmp_path):
 
 def test_swapped_files_and_unsupported_models_name_the_file(stereo, tmp_path):
     left, right, *_ = stereo
-    with pytest.raises(InputError, match="right.yaml.*the right .second. camera's file"):
+    with pytest.raises(InputError, match="right.yaml.*a right .second. camera's"):
         ci.calibration_from_ros(ci.read_ros_camera(right), ci.read_ros_camera(left))
     doc = yaml.safe_load(left.read_text())
     doc["distortion_model"] = "equidistant"
@@ -189,8 +189,8 @@ def test_bag_camera_info_gives_the_yamls_calibration(stereo, tmp_path, ros2):
     np.testing.assert_allclose(calib.R, R_TRUE, atol=1e-9)
     np.testing.assert_allclose(calib.T, T_TRUE_M, atol=1e-12)
     # named topics; a topic the bag lacks is named in the error
-    cams = ci.read_bag_cameras(bag, ["/jhu_daVinci/left/camera_info"])
-    assert len(cams) == 1 and np.allclose(cams[0].K, K1)
+    cams, topics = ci.read_bag_cameras(bag, ["/jhu_daVinci/left/camera_info"])
+    assert len(cams) == 1 and np.allclose(cams[0].K, K1) and topics == ["/jhu_daVinci/left/camera_info"]
     with pytest.raises(InputError, match="no sensor_msgs/msg/CameraInfo topic /stereo/left/camera_info"):
         ci.read_bag_cameras(bag, ["/stereo/left/camera_info"])
 
@@ -199,3 +199,73 @@ def test_an_uncalibrated_camera_info_is_refused(tmp_path):
     bag = write_camera_info_bag(tmp_path / "raw.bag", [("/cam/camera_info", np.zeros(9), [], np.eye(3), np.zeros(12))])
     with pytest.raises(InputError, match="camera_matrix is all zero"):
         ci.read_bag_cameras(bag)
+
+
+@pytest.mark.parametrize("flags", [0, cv2.CALIB_ZERO_DISPARITY])
+def test_vertical_pair_and_shifted_principal_points(tmp_path, flags):
+    """A vertical pair (OpenCV puts the baseline in P2[1,3]), with and without equal
+    principal points, recovers R and T; a right camera's file alone is refused."""
+    T = np.array([0.0002, -0.0049, 0.0004])
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(K1, D1, K2, D2, (W, H), R_TRUE, T.reshape(3, 1), flags=flags, alpha=0.5)
+    assert abs(P2[1, 3]) > abs(P2[0, 3])
+    left = ci.read_ros_camera(ros_yaml(tmp_path / "l.yaml", K1, D1, R1, P1, "l"))
+    right = ci.read_ros_camera(ros_yaml(tmp_path / "r.yaml", K2, D2, R2, P2, "r"))
+    calib = ci.calibration_from_ros(left, right)
+    np.testing.assert_allclose(calib.R, R_TRUE, atol=1e-9)
+    np.testing.assert_allclose(calib.T, T, atol=1e-12)
+    with pytest.raises(InputError, match="r.yaml: its projection_matrix holds a baseline"):
+        ci.calibration_from_ros(right)
+
+
+def test_mono_yaml_as_image_geometry_reads_it(tmp_path):
+    """No distortion coefficients is no distortion; an all-zero R is the identity and an
+    all-zero P no projection (a raw mono camera needs neither; --rectified needs P)."""
+    path = ros_yaml(tmp_path / "ost.yaml", K1, [], np.zeros((3, 3)), np.zeros((3, 4)), "mono")
+    cam = ci.read_ros_camera(path)
+    calib = ci.calibration_from_ros(cam)
+    np.testing.assert_array_equal(calib.left.dist, np.zeros(5))
+    np.testing.assert_array_equal(cam.R, np.eye(3))
+    with pytest.raises(InputError, match="ost.yaml: projection_matrix is all zero; --rectified needs it"):
+        ci.calibration_from_ros(cam, rectified=True)
+    ros_yaml(path, K1, [0.1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.02, 0.0], np.eye(3), np.zeros((3, 4)), "mono")
+    with pytest.raises(InputError, match=r"k4 k5 k6 \(0, 0.02, 0\)"):
+        ci.read_ros_camera(path)
+
+
+def test_binned_or_cropped_camera_info_is_refused(tmp_path):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    typ = "sensor_msgs/msg/CameraInfo"
+    header = T["std_msgs/msg/Header"](seq=0, stamp=T["builtin_interfaces/msg/Time"](sec=1, nanosec=0), frame_id="")
+    for name, binning, roi in (("binned", 2, (0, 0, 0, 0)), ("cropped", 0, (100, 50, 400, 640))):
+        bag = tmp_path / f"{name}.bag"
+        with Writer(bag) as w:
+            c = w.add_connection("/left/camera_info", typ, typestore=ts)
+            msg = T[typ](header=header, height=H, width=W, distortion_model="plumb_bob", D=D1, K=K1.ravel(),
+                         R=np.eye(3).ravel(), P=np.c_[K1, np.zeros(3)].ravel(), binning_x=binning, binning_y=binning,
+                         roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=roi[0], y_offset=roi[1], height=roi[2],
+                                                                   width=roi[3], do_rectify=False))
+            w.write(c, 1_000_000_000, ts.serialize_ros1(msg, typ))
+        with pytest.raises(InputError, match="binned or cropped"):
+            ci.read_bag_cameras(bag)
+
+
+def test_cli_refusals_are_one_line_exit_2(stereo, tmp_path, capsys):
+    left, right, *_ = stereo
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    assert main(["calibration", "--out", str(afile), "--ros", str(left)]) == 2
+    assert "not a folder" in capsys.readouterr().err
+    reg = registration_json(tmp_path / "PSM2-registration-open-cv.json", np.eye(4))
+    assert main(["calibration", "--out", str(tmp_path / "s"), "--dvrk-registration", str(reg), "--arm", "PSM1"]) == 2
+    assert "the registration of PSM2, but --arm PSM1" in capsys.readouterr().err
+    dvrk = registration_json(tmp_path / "PSM2-registration-dVRK.json", np.eye(4))
+    assert main(["calibration", "--out", str(tmp_path / "s"), "--dvrk-registration", str(dvrk)]) == 2
+    assert "PSM2-registration-open-cv.json" in capsys.readouterr().err
+    empty = write_camera_info_bag(tmp_path / "none.bag", [])
+    assert main(["calibration", "--out", str(tmp_path / "s"), "--bag", str(empty)]) == 2
+    assert "no camera_info messages" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()

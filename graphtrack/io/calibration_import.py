@@ -82,11 +82,14 @@ def read_ros_camera(path: str | Path) -> RosCamera:
 
 
 def _ros_camera(doc: dict, path: Path) -> RosCamera:
-    """A camera_info mapping (the YAML's layout) -> RosCamera; ``path`` names it in errors."""
+    """A camera_info mapping (the YAML's layout) -> RosCamera; ``path`` names it in errors.
+    As ROS's image_geometry reads it: no distortion coefficients is no distortion, an
+    all-zero rectification is the identity, an all-zero projection is none (P None:
+    a raw mono camera needs none)."""
     size = [doc.get("image_height"), doc.get("image_width")]
     if not all(is_number(s) and float(s).is_integer() and s > 0 for s in size):
         raise InputError(f"{path}: fields 'image_width' and 'image_height' must be positive integers")
-    model = str(doc.get("distortion_model", "plumb_bob"))
+    model = str(doc.get("distortion_model") or "plumb_bob")
     if model not in PLUMB_BOB:
         raise InputError(f"{path}: distortion_model '{model}' is not supported: graphtrack's camera is "
                          "OpenCV's plumb bob (k1 k2 p1 p2 k3); calibrate with that model")
@@ -94,16 +97,22 @@ def _ros_camera(doc: dict, path: Path) -> RosCamera:
     if not np.any(K):
         raise InputError(f"{path}: camera_matrix is all zero: the camera was not calibrated when this was written")
     D = _field(doc, "distortion_coefficients", 0, path)
-    if D.size not in (4, 5, 8) or np.any(D[5:] != 0):
-        raise InputError(f"{path}: distortion_coefficients must be k1 k2 p1 p2 [k3] (the rational model's "
-                         f"k4 k5 k6 are not supported), got {D.size} values")
+    if D.size not in (0, 4, 5, 8):
+        raise InputError(f"{path}: distortion_coefficients has {D.size} values; plumb bob's are k1 k2 p1 p2 [k3]")
+    if np.any(D[5:] != 0):
+        raise InputError(f"{path}: distortion_coefficients: the rational model's k4 k5 k6 "
+                         f"({', '.join(f'{v:g}' for v in D[5:])}) are not supported (graphtrack's camera is "
+                         "k1 k2 p1 p2 k3)")
     D5 = np.zeros(5)
     D5[: min(5, D.size)] = D[:5]
     R = _field(doc, "rectification_matrix", 9, path).reshape(3, 3)
-    P = _field(doc, "projection_matrix", 12, path).reshape(3, 4)
+    R = np.eye(3) if not np.any(R) else R
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
         raise InputError(f"{path}: field 'rectification_matrix' is not a rotation matrix")
-    if not (P[0, 0] > 0 and P[1, 1] > 0):
+    P = _field(doc, "projection_matrix", 12, path).reshape(3, 4)
+    if not np.any(P):
+        P = None
+    elif not (P[0, 0] > 0 and P[1, 1] > 0):
         raise InputError(f"{path}: field 'projection_matrix' has no positive focal lengths")
     return RosCamera(K, D5, R, P, int(size[0]), int(size[1]), path)
 
@@ -114,10 +123,13 @@ CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 def _camera_info_topics(infos: list[str], chosen: list[str] | None, where: str) -> list[str]:
     """The left (and right) camera_info topics: ``chosen``, else the bag's only one, else
     the one with ``left`` and the one with ``right`` in its name."""
+    if not infos:
+        raise InputError(f"{where}: no camera_info messages ({CAMERA_INFO_TYPE}) in the bag: give the "
+                         "calibration's YAMLs with --ros")
     if chosen:
         for t in chosen:
             if t not in infos:
-                raise InputError(f"{where}: no {CAMERA_INFO_TYPE} topic {t} (it has: {', '.join(infos) or 'none'})")
+                raise InputError(f"{where}: no {CAMERA_INFO_TYPE} topic {t} (it has: {', '.join(infos)})")
         return list(chosen)
     if len(infos) == 1:
         return infos
@@ -125,18 +137,31 @@ def _camera_info_topics(infos: list[str], chosen: list[str] | None, where: str) 
     right = [t for t in infos if "right" in t.lower()]
     if len(left) == 1 and len(right) <= 1:
         return left + right
-    raise InputError(f"{where}: {len(infos)} {CAMERA_INFO_TYPE} topics ({', '.join(infos) or 'none'}) and no "
+    raise InputError(f"{where}: {len(infos)} {CAMERA_INFO_TYPE} topics ({', '.join(infos)}) and no "
                      "single left one: name the left (and right) one with --camera-info-topic")
 
 
-def read_bag_cameras(path: str | Path, topics: list[str] | None = None) -> list[RosCamera]:
+def _bag_path(path: Path) -> Path:
+    """A ROS 1 .bag file, a ROS 2 bag folder, or a recording folder holding one of them."""
+    if not path.exists():
+        raise InputError(f"{path}: no such bag")
+    if path.is_file() or (path / "metadata.yaml").is_file():
+        return path
+    found = sorted(path.glob("*.bag")) + sorted(p for p in path.iterdir() if (p / "metadata.yaml").is_file())
+    if len(found) != 1:
+        raise InputError(f"{path}: a folder that is no ROS 2 bag (no metadata.yaml) and holds "
+                         f"{len(found)} bags: give the bag itself")
+    return found[0]
+
+
+def read_bag_cameras(path: str | Path, topics: list[str] | None = None) -> tuple[list[RosCamera], list[str]]:
     """The first CameraInfo message of the left (and right) camera_info topic of a ROS 1
-    bag or ROS 2 bag folder, as :func:`read_ros_camera` reads a YAML (ROS 1 fields K, D,
-    R, P; ROS 2 k, d, r, p)."""
+    bag or ROS 2 bag folder (or a recording folder holding one), as :func:`read_ros_camera`
+    reads a YAML (ROS 1 fields K, D, R, P; ROS 2 k, d, r, p), and the topics read."""
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    path = Path(path)
+    path = _bag_path(Path(path))
     store = get_typestore(Stores.ROS2_HUMBLE if path.is_dir() else Stores.ROS1_NOETIC)
     try:
         with AnyReader([path], default_typestore=store) as r:
@@ -147,21 +172,32 @@ def read_bag_cameras(path: str | Path, topics: list[str] | None = None) -> list[
                 conn = [c for c in r.connections if c.topic == topic]
                 _, _, raw = next(r.messages(connections=conn))
                 cams.append(_from_message(r.deserialize(raw, CAMERA_INFO_TYPE), f"{path} ({topic})"))
-            return cams
+            return cams, chosen
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - rosbags raises many types on damaged or foreign files
-        raise InputError(f"{path}: cannot read the bag's camera_info ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+        why = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise InputError(f"{path}: cannot read the bag's camera_info ({why})") from None
 
 
 def _from_message(msg, where: str) -> RosCamera:
-    """A CameraInfo message -> the YAML layout -> :func:`_ros_camera`."""
+    """A CameraInfo message -> the YAML layout -> :func:`_ros_camera`. K, D, R, P describe
+    the full unbinned sensor; a binned or cropped (ROI) image is refused."""
     def field(name):
         v = getattr(msg, name, None)
         return getattr(msg, name.lower()) if v is None else v
 
-    doc = {"image_width": int(msg.width), "image_height": int(msg.height),
-           "distortion_model": str(msg.distortion_model or "plumb_bob"),
+    w, h = int(msg.width), int(msg.height)
+    bx, by = int(getattr(msg, "binning_x", 0) or 0), int(getattr(msg, "binning_y", 0) or 0)
+    roi = getattr(msg, "roi", None)
+    cropped = roi is not None and roi.width and roi.height and (
+        roi.x_offset, roi.y_offset, roi.width, roi.height) != (0, 0, w, h)
+    if max(bx, by) > 1 or cropped:
+        raise InputError(f"{where}: the camera publishes binned or cropped images (binning {bx}x{by}, ROI "
+                         f"{roi.width}x{roi.height} at {roi.x_offset},{roi.y_offset}); its calibration describes "
+                         "the full sensor: record the full images, or write camera_calibration.yaml for the "
+                         "published ones by hand")
+    doc = {"image_width": w, "image_height": h, "distortion_model": str(msg.distortion_model or "plumb_bob"),
            "camera_matrix": [float(x) for x in field("K")],
            "distortion_coefficients": [float(x) for x in field("D")],
            "rectification_matrix": [float(x) for x in field("R")],
@@ -169,42 +205,68 @@ def _from_message(msg, where: str) -> RosCamera:
     return _ros_camera(doc, Path(where))
 
 
-def _baseline(cam: RosCamera) -> np.ndarray:
-    """t = (P[0,3] / P[0,0], P[1,3] / P[1,1], 0): the camera's offset in the rectified frame."""
-    return np.array([cam.P[0, 3] / cam.P[0, 0], cam.P[1, 3] / cam.P[1, 1], 0.0])
+def _projection(cam: RosCamera, why: str) -> np.ndarray:
+    if cam.P is None:
+        raise InputError(f"{cam.path}: projection_matrix is all zero; {why} needs it")
+    return cam.P
+
+
+def _baseline(cam: RosCamera, why: str) -> np.ndarray:
+    """t: the camera's offset from the first camera in the rectified frame, from P =
+    K' [I | t] (P[:, 3] = K' t): t_z = P[2,3], t_x = (P[0,3] - c_x' t_z) / f_x',
+    t_y = (P[1,3] - c_y' t_z) / f_y'. Entries under 1e-9 of the focal length are 0."""
+    P = _projection(cam, why)
+    col = np.where(np.abs(P[:, 3]) > 1e-9 * P[0, 0], P[:, 3], 0.0)
+    tz = col[2]
+    return np.array([(col[0] - P[0, 2] * tz) / P[0, 0], (col[1] - P[1, 2] * tz) / P[1, 1], tz])
 
 
 def calibration_from_ros(left: RosCamera, right: RosCamera | None = None, rectified: bool = False,
                          unit: str = "m") -> Calibration:
     """camera_calibration.yaml's contents from ROS camera_info YAMLs (module doc): the raw
     cameras (K, D; R = R_2^T R_1, T = R_2^T t), or with ``rectified`` the rectified ones.
-    ``unit``: the calibration's length unit ("m" or "mm"). Calibration.T is in metres."""
+    ``unit``: the calibration's length unit ("m" or "mm"). Calibration.T is in metres.
+    The left camera's projection must hold no baseline (else it is a right camera's)."""
     def camera(c: RosCamera) -> Camera:
         if rectified:
-            return Camera(c.P[:, :3].copy(), np.zeros(5), left.height, left.width)
+            return Camera(_projection(c, "--rectified")[:, :3].copy(), np.zeros(5), left.height, left.width)
         return Camera(c.K.copy(), c.D.copy(), left.height, left.width)
 
+    if left.P is not None and np.any(_baseline(left, "") != 0):
+        raise InputError(f"{left.path}: its projection_matrix holds a baseline (P[:, 3] not 0): it is a "
+                         "right (second) camera's; give the left camera's first")
     if right is None:
         return Calibration(camera(left))
     if (right.height, right.width) != (left.height, left.width):
         raise InputError(f"{right.path}: image size {right.width}x{right.height} differs from {left.path}'s "
                          f"{left.width}x{left.height}; both cameras of a recording share ImageSize")
-    if np.any(_baseline(left) != 0):
-        raise InputError(f"{left.path}: its projection_matrix holds a baseline (P[0,3], P[1,3] not 0): it is "
-                         "the right (second) camera's file; give the left camera's first")
-    t = _baseline(right) * UNITS_M[unit]
+    _projection(left, "a stereo pair")
+    t = _baseline(right, "a stereo pair") * UNITS_M[unit]
     if not np.any(t != 0):
-        raise InputError(f"{right.path}: its projection_matrix holds no baseline (P[0,3] = P[1,3] = 0): "
+        raise InputError(f"{right.path}: its projection_matrix holds no baseline (P[:, 3] = 0): "
                          "not the right camera of a stereo calibration")
     if rectified:
         return Calibration(camera(left), camera(right), np.eye(3), t)
     return Calibration(camera(left), camera(right), right.R.T @ left.R, right.R.T @ t)
 
 
-def read_dvrk_registration(path: str | Path, unit: str = "m") -> np.ndarray:
-    """The 4x4 camera-from-base transform (metres) of a dVRK camera registration JSON
-    (``{"base-frame": {"transform": 4x4}}``, module doc)."""
+@dataclass
+class Registration:
+    """A dVRK camera registration: ``transform`` camera-from-base (4x4, metres) and the
+    camera frame it names (``reference_frame``, "" when none)."""
+
+    transform: np.ndarray
+    reference_frame: str
+
+
+def read_dvrk_registration(path: str | Path, unit: str = "m") -> Registration:
+    """The camera-from-base transform (metres) of a dVRK camera registration JSON
+    (``{"base-frame": {"transform": 4x4}}``, module doc). Its ``-dVRK.json`` twin (the
+    dVRK's camera axes, x and y turned) is refused."""
     path = Path(path)
+    if re.search(r"registration-dvrk\.json$", path.name, re.IGNORECASE):
+        raise InputError(f"{path}: the registration in the dVRK's camera axes (x and y turned); give its twin "
+                         f"{re.sub('(?i)-dvrk[.]json$', '-open-cv.json', path.name)}, in OpenCV's axes")
     try:
         doc = json.loads(read_text(path))
     except json.JSONDecodeError as e:
@@ -224,7 +286,7 @@ def read_dvrk_registration(path: str | Path, unit: str = "m") -> np.ndarray:
         raise InputError(f"{path}: 'base-frame' -> 'transform' is not a rigid transform (a rotation, a "
                          "translation, last row 0 0 0 1)")
     T[:3, 3] *= UNITS_M[unit]
-    return T
+    return Registration(T, str(frame.get("reference-frame") or ""))
 
 
 def arm_of(path: str | Path) -> str | None:
