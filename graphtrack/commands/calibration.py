@@ -3,13 +3,13 @@ camera_calibration.yaml and handeye.yaml from the files the dVRK's calibration t
 
 --ros takes ROS camera_calibration's camera_info YAMLs (ost.yaml, or left.yaml and
 right.yaml of a stereo calibration: the left camera's first), --bag the same from a
-bag's camera_info messages; --dvrk-registration takes
-dvrk_camera_registration's PSMx-registration-open-cv.json (the PSM base in the camera's
-frame). The registration was measured through the rectified left image: with the cameras
-(--ros or --bag) it is turned into the raw left camera's frame, or kept in the rectified one with --rectified
-(a recording of the rectified image topics). Lengths are read in --length-unit (ROS and
-the dVRK: metres) and written as the recording format wants them (mm). Each file written
-is checked by loading it back.
+bag's camera_info messages; --dvrk-registration takes dvrk_camera_registration's
+PSMx-registration-open-cv.json (the PSM base in the camera's frame). The registration
+was measured through the rectified left image: with the cameras (--ros or --bag) it is
+turned into the raw left camera's frame, or kept in the rectified one with --rectified (a
+recording of the rectified image topics). Lengths are read in --length-unit (ROS and the
+dVRK: metres) and written as the recording format wants them (mm). Nothing is written
+unless every file passes the checks tracking makes when it reads them.
 """
 from __future__ import annotations
 

@@ -8,11 +8,11 @@ and handeye.yaml.
 lengths in the calibration's unit (metres by ROS convention); or the same fields of the
 first ``sensor_msgs/CameraInfo`` message on a bag's left (and right) camera_info topic,
 which a ROS camera driver publishes from that calibration. R_i turns camera i's
-frame into the rectified frame, and P_2 projects a point of the LEFT rectified frame into
-the right rectified image with P_2[:, 3] = (f' t_x, f' t_y, 0) (t_x = -baseline), so
+frame into the rectified frame, and P_2 = K' [I | t] projects a point of the LEFT
+rectified frame into the right rectified image (t_x = -baseline for a horizontal pair,
+t_y for a vertical one, t_z = P_2[2,3], 0 in ROS), so
 
-    X_right = R_2^T (R_1 X_left + t),   t = (P_2[0,3] / P_2[0,0], P_2[1,3] / P_2[1,1], 0):
-    R = R_2^T R_1,  T = R_2^T t.
+    X_right = R_2^T (R_1 X_left + t):   R = R_2^T R_1,  T = R_2^T t.
 
 A recording of the *rectified* images (``image_rect`` topics) is described by the
 rectified cameras instead: K_i = P_i[:, :3], no distortion, R = I, T = t.
@@ -46,12 +46,12 @@ UNITS_M = {"m": 1.0, "mm": 1e-3}
 @dataclass
 class RosCamera:
     """One ROS camera_info YAML: raw intrinsics K, distortion D (5), rectification R (3x3),
-    projection P (3x4), image height and width (px)."""
+    projection P (3x4; None when the file's is all zero), image height and width (px)."""
 
     K: np.ndarray
     D: np.ndarray
     R: np.ndarray
-    P: np.ndarray
+    P: np.ndarray | None
     height: int
     width: int
     path: Path
