@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from graphtrack.errors import InputError
-from graphtrack.geometry.camera import Calibration, Camera, load_calibration, save_calibration
+from graphtrack.geometry.camera import Calibration, Camera, load_calibration, save_calibration, size_mismatch_hint
 
 K = np.array([[1000.0, 0, 481.3], [0, 995.0, 268.9], [0, 0, 1]])
 D = np.array([-0.32, 0.12, 0.0011, -0.0007, -0.02])
@@ -174,3 +174,10 @@ def test_in_image_without_distortion_is_the_image_rectangle():
     got = cam.in_image(P)
     assert got.shape == (2, 50) and 0 < expected.sum() < expected.size
     np.testing.assert_array_equal(got, expected)
+
+
+def test_size_mismatch_hint():
+    assert "swapped" in size_mismatch_hint((960, 540), (540, 960))
+    assert "by 2)" in size_mismatch_hint((1080, 1920), (540, 960))
+    assert "by 0.5)" in size_mismatch_hint((270, 480), (540, 960))
+    assert size_mismatch_hint((480, 640), (540, 960)) == ""       # 4:3 against 16:9: no scale fits

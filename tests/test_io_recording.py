@@ -444,6 +444,15 @@ def test_image_size_mismatch(tmp_path):
     out = items(open_recording(seq, **NO_ROBOT))
     assert [f.reason for f in out] == ["image_size"] * 3
     assert "64x48" in str(out[0]) and "64x50" in str(out[0])
+    assert "times the size" not in str(out[0])     # another shape: no scale to suggest
+
+
+def test_image_size_at_another_resolution_suggests_the_scale(tmp_path):
+    seq = write_meta(tmp_path / "seq", h=2 * H, w=2 * W)   # calibrated at twice the recorded size
+    write_bag(seq / "rec.bag", make_frames(2))
+    out = items(open_recording(seq, **NO_ROBOT))
+    assert [f.reason for f in out] == ["image_size"] * 2
+    assert "calibrated at another resolution? scale ImageSize and K's fx, fy, cx, cy by 0.5" in str(out[0])
 
 
 def test_nan_joints(tmp_path):

@@ -217,6 +217,18 @@ class Calibration:
         return self.right.undistort(image, scale)
 
 
+def size_mismatch_hint(image_hw, calib_hw) -> str:
+    """Why an image of (height, width) ``image_hw`` may not match ImageSize ``calib_hw``:
+    its sides swapped, or the same shape at another scale (K scales with the image)."""
+    if tuple(image_hw) == tuple(calib_hw)[::-1]:
+        return " (width and height swapped there?)"
+    s = image_hw[1] / calib_hw[1]
+    if image_hw[0] < 2 or abs(image_hw[0] / calib_hw[0] - s) > 2.0 / calib_hw[0]:
+        return ""
+    return (f" (the same shape at {s:g} times the size: calibrated at another resolution? scale ImageSize and "
+            f"K's fx, fy, cx, cy by {s:g})")
+
+
 #: largest image side accepted in ImageSize (px)
 MAX_IMAGE_SIDE = 20000
 

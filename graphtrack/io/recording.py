@@ -48,7 +48,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError, read_text
-from graphtrack.geometry.camera import Calibration, load_calibration
+from graphtrack.geometry.camera import Calibration, load_calibration, size_mismatch_hint
 from graphtrack.io.bag import BagSource
 from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
@@ -184,9 +184,9 @@ class Recording:
             f = item
             joints = np.asarray(f.joints, dtype=float)
             if f.image.ndim < 2 or f.image.shape[:2] != (h, w):
-                swapped = " (width and height swapped there?)" if f.image.shape[:2] == (w, h) != (h, w) else ""
                 yield FrameError(f.index, "image_size", f"image is {f.image.shape[1]}x{f.image.shape[0]} px, "
-                                 f"camera_calibration.yaml ImageSize says {w}x{h}{swapped}")
+                                 f"camera_calibration.yaml ImageSize says {w}x{h}"
+                                 f"{size_mismatch_hint(f.image.shape[:2], (h, w))}")
             elif n_exp is not None and joints.size != n_exp:
                 yield FrameError(f.index, "joint_count",
                                  f"joint reading has {joints.size} values, robot.json has {n_exp} DH joints")
