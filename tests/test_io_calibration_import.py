@@ -269,3 +269,42 @@ def test_cli_refusals_are_one_line_exit_2(stereo, tmp_path, capsys):
     assert main(["calibration", "--out", str(tmp_path / "s"), "--bag", str(empty)]) == 2
     assert "no camera_info messages" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
+
+
+def test_a_recording_assembled_from_ros_and_dvrk_files_tracks_as_the_original(tmp_path):
+    """A simulated stereo recording's calibration, written out as ROS camera_calibration
+    and dvrk_camera_registration would (OpenCV's rectification), comes back through
+    `graphtrack calibration` and tracks to the same trajectory."""
+    import csv
+    import shutil
+
+    from graphtrack.sim.simulate import simulate
+
+    src = simulate(tmp_path / "rec", "tissue", frames=4, seed=3, size=(270, 480), progress=False, form="folder",
+                   stereo=True)
+    calib, E = load_calibration(src / "camera_calibration.yaml"), load_handeye(src / "handeye.yaml")
+    w, h = calib.left.width, calib.left.height
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(calib.left.K, calib.left.dist, calib.right.K, calib.right.dist, (w, h),
+                                           calib.R, calib.T.reshape(3, 1), alpha=0)
+    for name, cam, R, P in (("left", calib.left, R1, P1), ("right", calib.right, R2, P2)):
+        doc = {"image_width": w, "image_height": h, "camera_matrix": {"data": cam.K.ravel().tolist()},
+               "distortion_model": "plumb_bob", "distortion_coefficients": {"data": cam.dist.tolist()},
+               "rectification_matrix": {"data": R.ravel().tolist()}, "projection_matrix": {"data": P.ravel().tolist()}}
+        (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(doc))
+    rect = np.eye(4)
+    rect[:3, :3] = R1
+    reg = registration_json(tmp_path / "PSM1-registration-open-cv.json", rect @ E)
+    seq = tmp_path / "seq"
+    shutil.copytree(src, seq)
+    for f in ("camera_calibration.yaml", "handeye.yaml"):
+        (seq / f).unlink()
+    assert main(["calibration", "--out", str(seq), "--ros", str(tmp_path / "left.yaml"), str(tmp_path / "right.yaml"),
+                 "--dvrk-registration", str(reg)]) == 0
+    runs = []
+    for rec in (src, seq):
+        out = tmp_path / f"run-{rec.name}"
+        assert main(["track", str(rec), "--estimator", "kinematics", "--out", str(out), "--quiet"]) == 0
+        rows = list(csv.DictReader((out / "trajectory.csv").open()))
+        runs.append(np.array([[float(r[k]) for k in ("tx", "ty", "tz", "qx", "qy", "qz", "qw", "tip_u", "tip_v")]
+                              for r in rows]))
+    np.testing.assert_allclose(runs[1], runs[0], atol=1e-9)
