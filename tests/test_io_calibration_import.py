@@ -139,10 +139,10 @@ def test_bad_registrations_exit_2_with_nothing_written(stereo, tmp_path, capsys)
     reg = registration_json(tmp_path / "PSM1-mm.json", T)
     assert main(["calibration", "--out", str(seq), "--ros", str(left), "--dvrk-registration", str(reg)]) == 2
     err = capsys.readouterr().err
-    assert "handeye.yaml" in err and "--length-unit" in err and ".partial" not in err
+    assert "handeye.yaml" in err and "--registration-unit" in err and ".partial" not in err
     assert not seq.exists() or not any(seq.iterdir())
     assert main(["calibration", "--out", str(seq), "--ros", str(left), "--dvrk-registration", str(reg),
-                 "--length-unit", "mm"]) == 0
+                 "--registration-unit", "mm"]) == 0
     assert np.linalg.norm(load_handeye(seq / "handeye.yaml", "PSM1")[:3, 3]) == pytest.approx(np.sqrt(20 ** 2 + 10 ** 2 + 110 ** 2) / 1000)
     reg2 = registration_json(tmp_path / "registration.json", np.eye(4))
     assert main(["calibration", "--out", str(tmp_path / "s2"), "--dvrk-registration", str(reg2)]) == 2

@@ -3,13 +3,15 @@ camera_calibration.yaml and handeye.yaml from the files the dVRK's calibration t
 
 --ros takes ROS camera_calibration's camera_info YAMLs (ost.yaml, or left.yaml and
 right.yaml of a stereo calibration: the left camera's first), --bag the same from a
-bag's camera_info messages; --dvrk-registration takes dvrk_camera_registration's
+bag's camera_info messages, --opencv a calibrateCamera / stereoCalibrate result saved by
+OpenCV's FileStorage; --dvrk-registration takes dvrk_camera_registration's
 PSMx-registration-open-cv.json (the PSM base in the camera's frame). The registration
-was measured through the rectified left image: with the cameras (--ros or --bag) it is
-turned into the raw left camera's frame, or kept in the rectified one with --rectified (a
-recording of the rectified image topics). Lengths are read in --length-unit (ROS and the
-dVRK: metres) and written as the recording format wants them (mm). Nothing is written
-unless every file passes the checks tracking makes when it reads them.
+was measured through the rectified left image: with the left camera's rectification
+(--ros, --bag, or an OpenCV file holding R1) it is turned into the raw left camera's
+frame, or kept in the rectified one with --rectified (a recording of the rectified image
+topics). Lengths are read in --length-unit and --registration-unit (ROS and the dVRK:
+metres) and written as the recording format wants them (mm). Nothing is written unless
+every file passes the checks tracking makes when it reads them.
 """
 from __future__ import annotations
 
@@ -21,16 +23,17 @@ from graphtrack.commands.common import HelpFormatter, output_path
 from graphtrack.errors import InputError
 from graphtrack.geometry.camera import load_calibration, save_calibration
 from graphtrack.io import calibration_import as ci
+from graphtrack.io import opencv_calibration as oc
 from graphtrack.io.handeye import load_handeye, save_handeye
 from graphtrack.io.topics import ARMS
 
 
 def _targets(args) -> dict[str, Path]:
     out = Path(args.out)
-    names = ((["camera_calibration.yaml"] if args.ros or args.bag else [])
+    names = ((["camera_calibration.yaml"] if args.ros or args.bag or args.opencv else [])
              + (["handeye.yaml"] if args.dvrk_registration else []))
     if not names:
-        raise InputError("nothing to write: give --ros or --bag (camera_calibration.yaml) and/or "
+        raise InputError("nothing to write: give --ros, --bag or --opencv (camera_calibration.yaml) and/or "
                          "--dvrk-registration (handeye.yaml)")
     if out.exists() and not out.is_dir():
         raise InputError(f"{out}: not a folder (--out names the recording folder the files go into)")
@@ -43,20 +46,21 @@ def _targets(args) -> dict[str, Path]:
     return targets
 
 
-#: loader errors about lengths, which a wrong --length-unit causes
+#: loader errors about lengths, which a wrong unit option causes
 _LENGTH_KEYS = ("'T'", "_tvec'")
 
 
-def _write_all(files: dict[Path, tuple], unit: str) -> None:
-    """For each path: (save, check, source). Every file is saved beside its path and
+def _write_all(files: dict[Path, tuple]) -> None:
+    """For each path: (save, check, source, unit). Every file is saved beside its path and
     checked by the loader the tracker uses before any replaces its path: one the tracker
-    would refuse raises its error (naming the path and the ``source`` it came from) and
-    nothing is written (a folder made for them is removed again)."""
+    would refuse raises its error (naming the path, the ``source`` it came from and, for a
+    length, the ``unit`` option it was read with) and nothing is written (a folder made
+    for them is removed again)."""
     staged = {p: p.with_name(p.name + ".partial") for p in files}
     made = [d for d in {p.parent for p in files} if not d.exists()]
     done = False
     try:
-        for p, (save, check, source) in files.items():
+        for p, (save, check, source, unit) in files.items():
             try:
                 p.parent.mkdir(parents=True, exist_ok=True)
                 save(staged[p])
@@ -66,7 +70,7 @@ def _write_all(files: dict[Path, tuple], unit: str) -> None:
                 check(staged[p])
             except InputError as e:
                 msg = str(e).replace(str(staged[p]), str(p))
-                hint = f", its lengths read in {unit}: see --length-unit" if any(k in msg for k in _LENGTH_KEYS) else ""
+                hint = f", its lengths read in {unit}" if any(k in msg for k in _LENGTH_KEYS) else ""
                 raise InputError(f"{msg} (written from {source}{hint})") from None
         for p, tmp in staged.items():
             try:
@@ -83,9 +87,9 @@ def _write_all(files: dict[Path, tuple], unit: str) -> None:
                 d.rmdir()   # only if empty
 
 
-def _registration(args, cams):
-    """(arm, camera-from-base) of --dvrk-registration, in the raw left camera's frame when
-    the cameras are given and not --rectified."""
+def _registration(args, R1):
+    """(arm, camera-from-base) of --dvrk-registration, turned into the raw left camera's
+    frame by R1 (None: kept in the rectified frame it was measured in)."""
     path = args.dvrk_registration
     named = ci.arm_of(path)
     if args.arm and named and args.arm != named:
@@ -93,55 +97,98 @@ def _registration(args, cams):
     arm = args.arm or named
     if arm is None:
         raise InputError(f"{path}: its name does not start with PSM1, PSM2 or PSM3: name the arm with --arm")
-    reg = ci.read_dvrk_registration(path, args.length_unit)
+    reg = ci.read_dvrk_registration(path, args.registration_unit)
     if "right" in reg.reference_frame.lower():
         print(f"graphtrack: warning: {path}: its reference-frame is {reg.reference_frame!r}: registered through "
               "the right camera? handeye.yaml is the left camera's", file=sys.stderr)
-    return arm, (ci.handeye_to_raw(reg.transform, cams[0]) if cams and not args.rectified else reg.transform)
+    return arm, (reg.transform if R1 is None else ci.handeye_to_raw(reg.transform, R1))
 
 
-def run(args) -> int:
-    for name, value in (("--ros", args.ros), ("--camera-info-topic", args.camera_info_topic)):
+def _check_sources(args) -> None:
+    given = [n for n, v in (("--ros", args.ros), ("--bag", args.bag), ("--opencv", args.opencv)) if v]
+    if len(given) > 1:
+        raise InputError(f"give the cameras once: {' and '.join(given)} both describe them")
+    for name, value in (("--ros", args.ros), ("--camera-info-topic", args.camera_info_topic),
+                        ("--opencv", args.opencv)):
         if value and len(value) > 2:
-            raise InputError(f"{name} takes one (mono) or two (left, right), got {len(value)}")
-    if args.ros and args.bag:
-        raise InputError("give the cameras once: --ros YAMLs or --bag's camera_info, not both")
+            raise InputError(f"{name} takes one or two, got {len(value)}")
     if args.camera_info_topic and not args.bag:
         raise InputError("--camera-info-topic names topics of --bag: give --bag")
     if args.rectified and not (args.ros or args.bag):
         raise InputError("--rectified describes the rectified cameras of --ros or --bag: give one")
+    if (args.opencv_keys or args.image_size) and not args.opencv:
+        raise InputError("--opencv-keys and --image-size describe --opencv's files: give --opencv")
+
+
+def _cameras(args):
+    """(Calibration or None, R1 or None, sources): the cameras of --ros, --bag or --opencv
+    and the left rectification a registration is turned by (None with --rectified, or an
+    OpenCV file without R1)."""
+    if args.opencv:
+        calib, R1 = oc.calibration_from_opencv(args.opencv, _keys(args.opencv_keys), _image_size(args.image_size),
+                                               None if args.length_unit is None else ci.UNITS_M[args.length_unit])
+        return calib, R1, args.opencv
+    cams, sources = (([ci.read_ros_camera(p) for p in args.ros], args.ros) if args.ros else
+                     ci.read_bag_cameras(args.bag, args.camera_info_topic) if args.bag else ([], []))
+    if not cams:
+        return None, None, []
+    calib = ci.calibration_from_ros(*cams, rectified=args.rectified, unit=args.length_unit or "m")
+    return calib, (None if args.rectified else cams[0].R), sources
+
+
+def _keys(text: str | None) -> dict[str, str]:
+    out = {}
+    for item in filter(None, (text or "").split(",")):
+        role, sep, name = item.partition("=")
+        if not sep or not role.strip() or not name.strip():
+            raise InputError(f"--opencv-keys: {item!r} is not ROLE=NAME (e.g. K1=M1,D1=D1)")
+        out[role.strip()] = name.strip()
+    return out
+
+
+def _image_size(text: str | None) -> tuple[int, int] | None:
+    if text is None:
+        return None
+    w, sep, h = text.lower().partition("x")
+    if not (sep and w.isdigit() and h.isdigit() and int(w) > 0 and int(h) > 0):
+        raise InputError(f"--image-size: {text!r} is not WIDTHxHEIGHT (e.g. 960x540)")
+    return int(h), int(w)
+
+
+def run(args) -> int:
+    _check_sources(args)
     targets = _targets(args)
-    cams, topics = (([ci.read_ros_camera(p) for p in args.ros], args.ros) if args.ros else
-                    ci.read_bag_cameras(args.bag, args.camera_info_topic) if args.bag else ([], []))
-    calib = ci.calibration_from_ros(*cams, rectified=args.rectified, unit=args.length_unit) if cams else None
-    arm, handeye = _registration(args, cams) if args.dvrk_registration else (None, None)
+    calib, R1, sources = _cameras(args)
+    arm, handeye = _registration(args, R1) if args.dvrk_registration else (None, None)
     files = {}
     if calib is not None:
         files[targets["camera_calibration.yaml"]] = (lambda p: save_calibration(p, calib), load_calibration,
-                                                     " and ".join(map(str, topics)))
+                                                     " and ".join(map(str, sources)),
+                                                     f"{args.length_unit or 'm'}: see --length-unit")
     if handeye is not None:
         files[targets["handeye.yaml"]] = (lambda p: save_handeye(p, handeye, arm), lambda p: load_handeye(p, arm),
-                                          args.dvrk_registration)
-    _write_all(files, args.length_unit)
-    _report(args, targets, calib, arm, cams, topics)
+                                          args.dvrk_registration, f"{args.registration_unit}: see --registration-unit")
+    _write_all(files)
+    _report(args, targets, calib, arm, R1, sources)
     return 0
 
 
-def _report(args, targets, calib, arm, cams, topics) -> None:
+def _report(args, targets, calib, arm, R1, sources) -> None:
     if calib is not None:
         print(f"wrote {targets['camera_calibration.yaml']}: {'stereo' if calib.stereo else 'mono'}, "
               f"{calib.left.width}x{calib.left.height}{', rectified' if args.rectified else ''}, from "
-              f"{' and '.join(map(str, topics))}", file=sys.stderr)
+              f"{' and '.join(map(str, sources))}", file=sys.stderr)
         stale = Path(args.out) / "handeye.yaml"
         if arm is None and stale.exists():
             print(f"graphtrack: note: {stale} was left as it was; one converted from a registration with the "
                   "cameras of before wants --dvrk-registration again", file=sys.stderr)
     if arm is not None:
-        frame = "rectified left" if args.rectified or not cams else "left"
+        frame = "left" if R1 is not None else "rectified left"
         print(f"wrote {targets['handeye.yaml']}: {arm} base in the {frame} camera's frame", file=sys.stderr)
-        if not cams:
-            print("graphtrack: note: without the cameras (--ros, --bag) the registration stays in the rectified "
-                  "left camera's frame; for a recording of raw images give the left camera with --ros or --bag",
+        if R1 is None and not args.rectified:
+            print("graphtrack: note: the left camera's rectification is not known (give the cameras with --ros or "
+                  "--bag, or an OpenCV file holding R1), so the registration stays in the rectified left camera's "
+                  "frame: right for a recording of rectified images, off by that rotation for raw ones",
                   file=sys.stderr)
 
 
@@ -159,13 +206,25 @@ def add_parser(sub) -> None:
     p.add_argument("--camera-info-topic", nargs="+", action="extend", metavar="TOPIC", default=None,
                    help="--bag's left (and right) camera_info topic (default: the bag's only one, or the ones "
                         "with left and right in their names)")
+    p.add_argument("--opencv", nargs="+", action="extend", metavar="FILE", default=None,
+                   help="or read them from OpenCV FileStorage files (calibrateCamera / stereoCalibrate results, "
+                        "YAML, XML or JSON; names as OpenCV's samples write them, e.g. M1 D1 M2 D2 R T) "
+                        "(default: not read)")
+    p.add_argument("--opencv-keys", metavar="ROLE=NAME,...", default=None,
+                   help="--opencv's names for the roles K1 D1 K2 D2 R T R1 (or a mono file's K D) where they "
+                        "differ from the usual ones (default: found by name)")
+    p.add_argument("--image-size", metavar="WxH", default=None,
+                   help="the recorded images' size, for --opencv files that do not hold it (default: from the file)")
     p.add_argument("--rectified", action="store_true",
                    help="the recording holds the rectified images: describe the rectified cameras")
     p.add_argument("--dvrk-registration", metavar="JSON", default=None,
                    help="dvrk_camera_registration's PSMx-registration-open-cv.json (default: no handeye.yaml)")
     p.add_argument("--arm", choices=ARMS, default=None,
                    help="the arm of --dvrk-registration (default: from its file name)")
-    p.add_argument("--length-unit", choices=tuple(ci.UNITS_M), default="m",
-                   help="the unit of the calibrations' lengths (the stereo baseline, the registration)")
+    p.add_argument("--length-unit", choices=tuple(ci.UNITS_M), default=None,
+                   help="the unit of the cameras' stereo baseline (default: m, as ROS writes it; an OpenCV stereo "
+                        "file, in its pattern's unit, needs it)")
+    p.add_argument("--registration-unit", choices=tuple(ci.UNITS_M), default="m",
+                   help="the unit of --dvrk-registration's translation (the dVRK's: m)")
     p.add_argument("--overwrite", action="store_true", help="replace existing files in --out")
     p.set_defaults(func=run)

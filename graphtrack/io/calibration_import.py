@@ -295,9 +295,9 @@ def arm_of(path: str | Path) -> str | None:
     return m.group(1).upper() if m else None
 
 
-def handeye_to_raw(camera_T_base: np.ndarray, left: RosCamera) -> np.ndarray:
+def handeye_to_raw(camera_T_base: np.ndarray, R1: np.ndarray) -> np.ndarray:
     """A transform into the left rectified frame -> into the left camera's own (raw) frame:
-    [R_1^T 0; 0 1] . camera_T_base."""
+    [R_1^T 0; 0 1] . camera_T_base, R_1 the left camera's rectification."""
     C = np.eye(4)
-    C[:3, :3] = left.R.T
+    C[:3, :3] = np.asarray(R1, float).T
     return C @ camera_T_base
