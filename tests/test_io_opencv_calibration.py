@@ -107,3 +107,11 @@ def test_refusals_name_what_is_missing(tmp_path, capsys):
     (tmp_path / "bad.yml").write_text("%YAML:1.0\n{{{ nope\n")
     assert main(["calibration", "--out", str(tmp_path / "x"), "--opencv", str(tmp_path / "bad.yml")]) == 2
     assert "bad.yml: not a file OpenCV's FileStorage reads" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name,size", [("imageSize", (W, H)), ("ImageSize", (H, W))])
+def test_a_size_node_in_either_order_centres_the_principal_point(tmp_path, name, size):
+    """OpenCV writes a cv::Size as [width, height], graphtrack's ImageSize is [height, width]."""
+    path = storage(tmp_path / "c.yml", M1=K1, D1=D1, **{name: size})
+    calib, _ = calibration_from_opencv([path])
+    assert (calib.left.height, calib.left.width) == (H, W)

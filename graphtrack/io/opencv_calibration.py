@@ -9,9 +9,10 @@ own argument names ``cameraMatrix1 distCoeffs1 ...``), or named with ``keys``
 (role -> name). The roles: K1, D1 (or a mono file's K, D), K2, D2, R, T (the right
 camera from the left: X_right = R X_left + T, in the pattern's unit), and R1 (the
 left camera's rectification, when ``stereoRectify``'s result was saved too: the
-frame a registration made through the rectified image is in). The image size:
-``image_width`` and ``image_height``, else ``imageSize`` / ``image_size`` as OpenCV
-writes a ``cv::Size``, [width, height], else ``size`` given by the caller.
+frame a registration made through the rectified image is in). The image size: given
+by the caller, else ``image_width`` and ``image_height``, else a two-number
+``imageSize`` / ``image_size`` / ``ImageSize`` in the order that centres the principal
+point (a ``cv::Size`` is [width, height], graphtrack's ImageSize [height, width]).
 """
 from __future__ import annotations
 
@@ -94,15 +95,21 @@ def _find(nodes: dict[str, np.ndarray], role: str, keys: dict[str, str], where: 
     return v
 
 
-def _size(nodes: dict[str, np.ndarray], size: tuple[int, int] | None, where: str) -> tuple[int, int]:
-    """(height, width) px: image_width / image_height, else a cv::Size [w, h], else ``size``."""
+def _size(nodes: dict[str, np.ndarray], size: tuple[int, int] | None, K: np.ndarray,
+          where: str) -> tuple[int, int]:
+    """(height, width) px: ``size`` if given, else image_width / image_height, else a
+    two-number size node (imageSize, image_size, ImageSize), whose order (OpenCV writes a
+    cv::Size as [width, height], graphtrack's ImageSize is [height, width]) is the one
+    that puts K's principal point nearer the image's centre."""
+    if size is not None:
+        return size
     by_norm = {_norm(k): v for k, v in nodes.items()}
     if "imagewidth" in by_norm and "imageheight" in by_norm:
         w, h = by_norm["imagewidth"][0], by_norm["imageheight"][0]
     elif by_norm.get("imagesize") is not None and by_norm["imagesize"].size == 2:
-        w, h = by_norm["imagesize"]
-    elif size is not None:
-        return size
+        a, b = by_norm["imagesize"]
+        cx, cy = K[2], K[5]
+        w, h = (a, b) if abs(cx - a / 2) + abs(cy - b / 2) <= abs(cx - b / 2) + abs(cy - a / 2) else (b, a)
     else:
         raise InputError(f"{where}: no image size (image_width and image_height, or imageSize): give --image-size "
                          "WIDTHxHEIGHT of the recorded images")
@@ -124,7 +131,6 @@ def calibration_from_opencv(paths: list[str | Path], keys: dict[str, str] | None
         raise InputError(f"--opencv-keys: unknown role(s) {', '.join(sorted(unknown))} (roles: {', '.join(ALIASES)})")
     where = " and ".join(map(str, paths))
     nodes = read_storage(paths)
-    h, w = _size(nodes, size, where)
     K1 = _find(nodes, "K1", keys, where)
     D1 = _find(nodes, "D1", keys, where)
     if K1 is None:
@@ -132,6 +138,7 @@ def calibration_from_opencv(paths: list[str | Path], keys: dict[str, str] | None
     if K1 is None or D1 is None:
         raise InputError(f"{where}: no camera matrix and distortion found (names tried: M1/K1/cameraMatrix1, "
                          f"camera_matrix, ...; it has: {', '.join(nodes)}): name them with --opencv-keys K1=NAME,D1=NAME")
+    h, w = _size(nodes, size, K1, where)
     stereo = {r: _find(nodes, r, keys, where) for r in ("K2", "D2", "R", "T")}
     left = _camera(K1, D1, h, w, where)
     if all(v is None for v in stereo.values()):
