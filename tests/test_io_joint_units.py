@@ -60,3 +60,22 @@ def test_one_row_in_degrees_is_a_counted_skip(tmp_path):
     out = list(open_recording(rec).frames())
     bad = [f for f in out if isinstance(f, FrameError)]
     assert [(f.frame, f.reason) for f in bad] == [(2, "joint_range")] and "q4 = " in str(bad[0])
+
+
+def test_stamps_a_second_or_more_apart_are_warned_about(tmp_path):
+    """Milliseconds of a 100 frames/s camera read as seconds are 10 apart: under the
+    refusal's 10 s, so they are warned about; seconds at 30 frames/s are not."""
+    import csv
+
+    from graphtrack.io.recording import open_recording
+    from graphtrack.sim.simulate import simulate
+
+    seq = simulate(tmp_path / "rec", "tissue", frames=4, seed=1, size=(270, 480), progress=False, form="folder")
+    assert not any("apart" in w for w in open_recording(seq).warnings)
+    rows = list(csv.reader((seq / "joints.csv").open()))
+    for r in rows[1:]:
+        r[1] = repr(int(r[0]) * 10.0)          # 10 ms between frames, written as 10
+    with (seq / "joints.csv").open("w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    warned = [w for w in open_recording(seq).warnings if "apart" in w]
+    assert len(warned) == 1 and "joints.csv: the stamps are 10 s apart (median)" in warned[0]

@@ -31,6 +31,9 @@ from graphtrack.io.video import open_video
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 #: s: the most the median interval between frames may be (the motion model's frame to frame)
 MAX_FRAME_INTERVAL_S = 10.0
+#: s: a median interval above this (under one frame per second) is warned about: milliseconds
+#: of a camera at 100 frames/s or more read as seconds, below MAX_FRAME_INTERVAL_S
+SLOW_FRAME_INTERVAL_S = 1.0
 
 
 def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -100,6 +103,11 @@ class FolderSource:
         self.warnings: list[str] = []
         self._stamps, self._joints, self._jaw = read_joints_csv(self.path / "joints.csv")
         self.n_images = len(self._stamps)
+        step = float(np.median(np.diff(self._stamps))) if self.n_images > 1 else 0.0
+        if step > SLOW_FRAME_INTERVAL_S:
+            self.warnings.append(f"{self.path / 'joints.csv'}: the stamps are {step:.4g} s apart (median), under one "
+                                 "frame per second; milliseconds (a camera at 100 frames/s or more) must be divided "
+                                 "by 1000: the smoother's lag and the edge bias's time constant are seconds")
         self.n_columns = self._joints.shape[1]
         self.has_jaw = bool(np.any(np.isfinite(self._jaw)))
         frames_dir = self.path / "frames"
