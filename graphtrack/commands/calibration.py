@@ -6,15 +6,16 @@ right.yaml of a stereo calibration: the left camera's first), --bag the same fro
 bag's camera_info messages, --opencv a calibrateCamera / stereoCalibrate result saved by
 OpenCV's FileStorage; --dvrk-registration takes dvrk_camera_registration's
 PSMx-registration-open-cv.json (the PSM base in the camera's frame). The registration
-was measured through the rectified left image: with the left camera's rectification
-(--ros, --bag, or an OpenCV file holding R1) it is turned into the raw left camera's
-frame, or kept in the rectified one with --rectified (a recording of the rectified image
-topics). Lengths are read in --length-unit and --registration-unit (ROS and the dVRK:
-metres) and written as the recording format wants them (mm). Nothing is written unless
-every file passes the checks tracking makes when it reads them.
+was measured through the rectified left image: with the cameras it is turned into the raw
+left camera's frame by the left rectification (ROS's R, OpenCV's stereoRectify R1), or
+kept in the rectified one with --rectified (a recording of the rectified image topics).
+Lengths are read in --length-unit and --registration-unit (ROS and the dVRK: metres) and
+written as the recording format wants them (mm). Nothing is written unless every file
+passes the checks tracking makes when it reads them.
 """
 from __future__ import annotations
 
+import argparse
 import contextlib
 import sys
 from pathlib import Path
@@ -122,18 +123,35 @@ def _check_sources(args) -> None:
 
 def _cameras(args):
     """(Calibration or None, R1 or None, sources): the cameras of --ros, --bag or --opencv
-    and the left rectification a registration is turned by (None with --rectified, or an
-    OpenCV file without R1)."""
+    and the left rectification a registration is turned by (None with --rectified or
+    without cameras)."""
     if args.opencv:
         calib, R1 = oc.calibration_from_opencv(args.opencv, _keys(args.opencv_keys), _image_size(args.image_size),
-                                               None if args.length_unit is None else ci.UNITS_M[args.length_unit])
+                                               args.length_unit)
         return calib, R1, args.opencv
     cams, sources = (([ci.read_ros_camera(p) for p in args.ros], args.ros) if args.ros else
                      ci.read_bag_cameras(args.bag, args.camera_info_topic) if args.bag else ([], []))
     if not cams:
         return None, None, []
-    calib = ci.calibration_from_ros(*cams, rectified=args.rectified, unit=args.length_unit or "m")
+    calib = ci.calibration_from_ros(*cams, rectified=args.rectified, unit_m=args.length_unit or 1.0)
     return calib, (None if args.rectified else cams[0].R), sources
+
+
+def _length_unit(text: str) -> float:
+    """argparse type of --length-unit: m, mm, or a positive number of metres per unit."""
+    if text in ci.UNITS_M:
+        return ci.UNITS_M[text]
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value < 1e3:
+        raise argparse.ArgumentTypeError(f"{text!r}: give m, mm, or metres per unit (e.g. 0.0025)")
+    return value
+
+
+def _unit_text(unit_m: float) -> str:
+    return next((k for k, v in ci.UNITS_M.items() if v == unit_m), f"units of {unit_m:g} m")
 
 
 def _keys(text: str | None) -> dict[str, str]:
@@ -164,7 +182,7 @@ def run(args) -> int:
     if calib is not None:
         files[targets["camera_calibration.yaml"]] = (lambda p: save_calibration(p, calib), load_calibration,
                                                      " and ".join(map(str, sources)),
-                                                     f"{args.length_unit or 'm'}: see --length-unit")
+                                                     f"{_unit_text(args.length_unit or 1.0)}: see --length-unit")
     if handeye is not None:
         files[targets["handeye.yaml"]] = (lambda p: save_handeye(p, handeye, arm), lambda p: load_handeye(p, arm),
                                           args.dvrk_registration, f"{args.registration_unit}: see --registration-unit")
@@ -186,10 +204,9 @@ def _report(args, targets, calib, arm, R1, sources) -> None:
         frame = "left" if R1 is not None else "rectified left"
         print(f"wrote {targets['handeye.yaml']}: {arm} base in the {frame} camera's frame", file=sys.stderr)
         if R1 is None and not args.rectified:
-            print("graphtrack: note: the left camera's rectification is not known (give the cameras with --ros or "
-                  "--bag, or an OpenCV file holding R1), so the registration stays in the rectified left camera's "
-                  "frame: right for a recording of rectified images, off by that rotation for raw ones",
-                  file=sys.stderr)
+            print("graphtrack: note: without the cameras (--ros, --bag, --opencv) the registration stays in the "
+                  "rectified left camera's frame: right for a recording of rectified images, off by the "
+                  "rectification's rotation for raw ones", file=sys.stderr)
 
 
 def add_parser(sub) -> None:
@@ -221,9 +238,9 @@ def add_parser(sub) -> None:
                    help="dvrk_camera_registration's PSMx-registration-open-cv.json (default: no handeye.yaml)")
     p.add_argument("--arm", choices=ARMS, default=None,
                    help="the arm of --dvrk-registration (default: from its file name)")
-    p.add_argument("--length-unit", choices=tuple(ci.UNITS_M), default=None,
-                   help="the unit of the cameras' stereo baseline (default: m, as ROS writes it; an OpenCV stereo "
-                        "file, in its pattern's unit, needs it)")
+    p.add_argument("--length-unit", type=_length_unit, metavar="UNIT", default=None,
+                   help="the unit of the cameras' stereo baseline: m, mm, or metres per unit (default: m, as ROS "
+                        "writes it; an OpenCV stereo file, in the unit its square size was given in, needs it)")
     p.add_argument("--registration-unit", choices=tuple(ci.UNITS_M), default="m",
                    help="the unit of --dvrk-registration's translation (the dVRK's: m)")
     p.add_argument("--overwrite", action="store_true", help="replace existing files in --out")

@@ -222,10 +222,10 @@ def _baseline(cam: RosCamera, why: str) -> np.ndarray:
 
 
 def calibration_from_ros(left: RosCamera, right: RosCamera | None = None, rectified: bool = False,
-                         unit: str = "m") -> Calibration:
+                         unit_m: float = 1.0) -> Calibration:
     """camera_calibration.yaml's contents from ROS camera_info YAMLs (module doc): the raw
     cameras (K, D; R = R_2^T R_1, T = R_2^T t), or with ``rectified`` the rectified ones.
-    ``unit``: the calibration's length unit ("m" or "mm"). Calibration.T is in metres.
+    ``unit_m``: metres per unit of the calibration's lengths. Calibration.T is in metres.
     The left camera's projection must hold no baseline (else it is a right camera's)."""
     def camera(c: RosCamera) -> Camera:
         if rectified:
@@ -241,7 +241,7 @@ def calibration_from_ros(left: RosCamera, right: RosCamera | None = None, rectif
         raise InputError(f"{right.path}: image size {right.width}x{right.height} differs from {left.path}'s "
                          f"{left.width}x{left.height}; both cameras of a recording share ImageSize")
     _projection(left, "a stereo pair")
-    t = _baseline(right, "a stereo pair") * UNITS_M[unit]
+    t = _baseline(right, "a stereo pair") * unit_m
     if not np.any(t != 0):
         raise InputError(f"{right.path}: its projection_matrix holds no baseline (P[:, 3] = 0): "
                          "not the right camera of a stereo calibration")
