@@ -60,6 +60,13 @@ RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo 
 MAX_JOINT_GAP_S = 0.2
 
 
+def open_bag(path: Path) -> AnyReader:
+    """A rosbags reader of a ROS 1 .bag file or a ROS 2 bag folder, with the typestore of its
+    ROS version for messages whose definitions the bag does not carry."""
+    store = get_typestore(Stores.ROS2_HUMBLE if Path(path).is_dir() else Stores.ROS1_NOETIC)
+    return AnyReader([Path(path)], default_typestore=store)
+
+
 # -- the reader -------------------------------------------------------------------------
 class BagSource:
     """One ROS 1 bag file or ROS 2 bag folder: validated at construction, streamed later.
@@ -97,8 +104,7 @@ class BagSource:
 
     # -- opening ------------------------------------------------------------------------
     def _reader(self):
-        store = get_typestore(Stores.ROS2_HUMBLE if self.ros2 else Stores.ROS1_NOETIC)
-        return AnyReader([self.path], default_typestore=store)
+        return open_bag(self.path)
 
     def _indexed_topics(self) -> dict[str, tuple[str, int]]:
         if not self.ros2 and self.path.suffix != ".bag":

@@ -37,6 +37,8 @@ import numpy as np
 
 from graphtrack.errors import InputError, is_number, read_text, read_yaml
 from graphtrack.geometry.camera import Calibration, Camera
+from graphtrack.io.bag import open_bag
+from graphtrack.io.recording import is_ros2_bag
 
 #: the distortion models graphtrack's camera (OpenCV's plumb bob) represents
 PLUMB_BOB = ("plumb_bob", "rational_polynomial")
@@ -145,9 +147,9 @@ def _bag_path(path: Path) -> Path:
     """A ROS 1 .bag file, a ROS 2 bag folder, or a recording folder holding one of them."""
     if not path.exists():
         raise InputError(f"{path}: no such bag")
-    if path.is_file() or (path / "metadata.yaml").is_file():
+    if path.is_file() or is_ros2_bag(path):
         return path
-    found = sorted(path.glob("*.bag")) + sorted(p for p in path.iterdir() if (p / "metadata.yaml").is_file())
+    found = sorted(path.glob("*.bag")) + sorted(p for p in path.iterdir() if is_ros2_bag(p))
     if len(found) != 1:
         raise InputError(f"{path}: a folder that is no ROS 2 bag (no metadata.yaml) and holds "
                          f"{len(found)} bags: give the bag itself")
@@ -158,13 +160,9 @@ def read_bag_cameras(path: str | Path, topics: list[str] | None = None) -> tuple
     """The first CameraInfo message of the left (and right) camera_info topic of a ROS 1
     bag or ROS 2 bag folder (or a recording folder holding one), as :func:`read_ros_camera`
     reads a YAML (ROS 1 fields K, D, R, P; ROS 2 k, d, r, p), and the topics read."""
-    from rosbags.highlevel import AnyReader
-    from rosbags.typesys import Stores, get_typestore
-
     path = _bag_path(Path(path))
-    store = get_typestore(Stores.ROS2_HUMBLE if path.is_dir() else Stores.ROS1_NOETIC)
     try:
-        with AnyReader([path], default_typestore=store) as r:
+        with open_bag(path) as r:
             infos = [n for n, c in r.topics.items() if c.msgtype == CAMERA_INFO_TYPE and c.msgcount]
             chosen = _camera_info_topics(infos, topics, str(path))
             cams = []

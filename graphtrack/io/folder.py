@@ -36,6 +36,11 @@ MAX_FRAME_INTERVAL_S = 10.0
 SLOW_FRAME_INTERVAL_S = 1.0
 
 
+def median_interval(stamps: np.ndarray) -> float:
+    """The median interval between consecutive stamps (their unit; 0 for fewer than two)."""
+    return float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.0
+
+
 def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """joints.csv -> (stamps (N,) s, joints (N, n), jaw (N,) NaN when empty).
 
@@ -48,7 +53,7 @@ def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         out = _parse_joints_csv(read_text(path), path)
     except csv.Error as e:
         raise InputError(f"{path}: not a readable CSV file ({e})") from None
-    step = float(np.median(np.diff(out[0]))) if len(out[0]) > 1 else 0.0
+    step = median_interval(out[0])
     if step > MAX_FRAME_INTERVAL_S:
         raise InputError(f"{path}: the stamps are {step:.6g} apart (median); stamps are seconds, and frames "
                          f"more than {MAX_FRAME_INTERVAL_S:g} s apart are no video (milliseconds or nanoseconds?)")
@@ -103,7 +108,7 @@ class FolderSource:
         self.warnings: list[str] = []
         self._stamps, self._joints, self._jaw = read_joints_csv(self.path / "joints.csv")
         self.n_images = len(self._stamps)
-        step = float(np.median(np.diff(self._stamps))) if self.n_images > 1 else 0.0
+        step = median_interval(self._stamps)
         if step > SLOW_FRAME_INTERVAL_S:
             self.warnings.append(f"{self.path / 'joints.csv'}: the stamps are {step:.4g} s apart (median), under one "
                                  "frame per second; milliseconds (a camera at 100 frames/s or more) must be divided "
