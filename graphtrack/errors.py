@@ -73,6 +73,31 @@ def is_number(v) -> bool:
     return math.isfinite(v)
 
 
+def number_list(doc: dict, key: str, path, sizes: tuple[int, ...] = (), noun: str = "key",
+                missing: str = ""):
+    """``doc[key]``, or ``doc[key]["data"]`` (the mapping OpenCV's FileStorage and ROS's
+    camera_info YAML write), as a float array: a flat list of finite numbers, of one of
+    ``sizes`` values when given. InputError naming ``path`` and the ``noun`` ``key``
+    otherwise; ``missing`` is appended to the message when the key is absent."""
+    import numpy as np
+
+    if key not in doc:
+        raise InputError(f"{path}: missing {noun} '{key}'{missing}")
+    v = doc[key]
+    if isinstance(v, dict):
+        if "data" not in v:
+            raise InputError(f"{path}: {noun} '{key}' has no 'data' field")
+        v = v["data"]
+    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise InputError(f"{path}: {noun} '{key}' must be a flat list of numbers, got {str(v)[:60]}")
+    if not all(is_number(x) for x in v):
+        raise InputError(f"{path}: {noun} '{key}' holds NaN, infinite or out-of-range values")
+    if sizes and len(v) not in sizes:
+        raise InputError(f"{path}: {noun} '{key}' has {len(v)} values, expected "
+                         f"{' or '.join(map(str, sizes))}")
+    return np.asarray(v, dtype=float)
+
+
 MAX_SEED = 2**32 - 1   #: the largest seed (numpy's and torch's generators both take 0..2**32-1 as given)
 
 

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import yaml
 
-from graphtrack.errors import InputError, is_number, read_yaml
+from graphtrack.errors import InputError, is_number, number_list, read_yaml
 
 
 @dataclass
@@ -235,26 +235,13 @@ MAX_IMAGE_SIDE = 20000
 
 def _matrix(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
     """doc[key] (or doc[key]["data"]): a flat list of n finite numbers (D: 4, 5 or 8)."""
-    if key not in doc:
-        raise InputError(f"{path}: missing key '{key}'")
-    v = doc[key]
-    if isinstance(v, dict):
-        if "data" not in v:
-            raise InputError(f"{path}: key '{key}' has no 'data' field")
-        v = v["data"]
-    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-        raise InputError(f"{path}: key '{key}' must be a flat list of numbers, got {str(v)[:60]}")
-    if not all(is_number(x) for x in v):
-        raise InputError(f"{path}: key '{key}' holds NaN, infinite or out-of-range values")
-    a = np.asarray(v, dtype=float)
-    if key.startswith("D") and a.size not in (4, 5, 8):
-        raise InputError(f"{path}: key '{key}' has {a.size} values, expected 4, 5 or 8 "
-                         "(OpenCV's k1 k2 p1 p2 [k3 [k4 k5 k6]])")
-    if a.size != n and not key.startswith("D"):
-        raise InputError(f"{path}: key '{key}' has {a.size} values, expected {n}")
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{path}: key '{key}' holds NaN or infinite values")
-    return a
+    if key.startswith("D"):
+        a = number_list(doc, key, path)
+        if a.size not in (4, 5, 8):
+            raise InputError(f"{path}: key '{key}' has {a.size} values, expected 4, 5 or 8 "
+                             "(OpenCV's k1 k2 p1 p2 [k3 [k4 k5 k6]])")
+        return a
+    return number_list(doc, key, path, (n,))
 
 
 def _image_size(doc: dict, path: Path) -> tuple[int, int]:

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError, is_number, read_text, read_yaml
+from graphtrack.errors import InputError, is_number, number_list, read_text, read_yaml
 from graphtrack.geometry.camera import Calibration, Camera
 from graphtrack.io.bag import open_bag
 from graphtrack.io.recording import is_ros2_bag
@@ -60,18 +60,10 @@ class RosCamera:
 
 
 def _field(doc: dict, key: str, n: int, path: Path) -> np.ndarray:
-    """doc[key]["data"] (or a plain list): n finite numbers."""
-    v = doc.get(key)
-    if isinstance(v, dict):
-        v = v.get("data")
-    if v is None:
-        raise InputError(f"{path}: missing field '{key}' (a ROS camera_info YAML has camera_matrix, "
-                         "distortion_coefficients, rectification_matrix and projection_matrix)")
-    if not isinstance(v, list) or not all(is_number(x) for x in v):
-        raise InputError(f"{path}: field '{key}' must hold a list of finite numbers")
-    if n and len(v) != n:
-        raise InputError(f"{path}: field '{key}' has {len(v)} values, expected {n}")
-    return np.asarray(v, dtype=float)
+    """doc[key]["data"] (or a plain list): n finite numbers (any number when n is 0)."""
+    return number_list(doc, key, path, (n,) if n else (), noun="field",
+                       missing=" (a ROS camera_info YAML has camera_matrix, distortion_coefficients, "
+                               "rectification_matrix and projection_matrix)")
 
 
 def read_ros_camera(path: str | Path) -> RosCamera:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from graphtrack.errors import InputError, is_number, read_yaml
+from graphtrack.errors import InputError, number_list, read_yaml
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
 from graphtrack.io.topics import TopicSelection, handeye_arm
 
@@ -26,24 +26,6 @@ def _read_yaml(path: Path) -> dict:
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping of keys like 'PSM1_tvec'")
     return doc
-
-
-def _vector3(doc: dict, key: str, path: Path) -> np.ndarray:
-    if key not in doc:
-        raise InputError(f"{path}: missing key '{key}'")
-    v = doc[key]
-    if isinstance(v, dict):  # {data: [...]} as OpenCV / camera_calibration.yaml write it
-        v = v.get("data")
-    if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
-        raise InputError(f"{path}: key '{key}' is not a list of 3 numbers")
-    if not all(is_number(x) for x in v):
-        raise InputError(f"{path}: key '{key}' holds NaN, infinite or out-of-range values")
-    a = np.asarray(v, dtype=float)
-    if a.size != 3:
-        raise InputError(f"{path}: key '{key}' has {a.size} values, expected 3")
-    if not np.all(np.isfinite(a)):
-        raise InputError(f"{path}: key '{key}' holds NaN or infinite values")
-    return a
 
 
 #: plausibility bounds: the camera is between MIN_TRANSLATION_MM and MAX_TRANSLATION_MM
@@ -81,8 +63,8 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
         found = sorted(k[: -len("_tvec")] for k in doc if isinstance(k, str) and k.endswith("_tvec"))
         raise InputError(f"{path}: missing key '{prefix}_tvec' (the file has hand-eye keys for: "
                          f"{', '.join(found) or 'no arm'}); choose the arm with --arm")
-    t_mm = _vector3(doc, f"{prefix}_tvec", path)
-    rvec = _vector3(doc, f"{prefix}_rvec", path)
+    t_mm = number_list(doc, f"{prefix}_tvec", path, (3,))
+    rvec = number_list(doc, f"{prefix}_rvec", path, (3,))
     if not np.linalg.norm(t_mm) <= MAX_TRANSLATION_MM:
         raise InputError(f"{path}: key '{prefix}_tvec' is {np.linalg.norm(t_mm):.4g} mm from the base; "
                          f"expected at most {MAX_TRANSLATION_MM:g} mm (the file is in millimetres)")
