@@ -28,6 +28,13 @@ def scale_tvec(f: float):
     return fn
 
 
+def shift_tvec_x(mm: float):
+    """The camera's x moved by ``mm``: the tool in front of it, far outside its image."""
+    def fn(doc):
+        doc["PSM1_tvec"][0] += mm
+    return fn
+
+
 def invert_handeye(doc):
     """base-from-camera written where camera-from-base belongs."""
     R = cv2.Rodrigues(np.asarray(doc["PSM1_rvec"], float))[0]
@@ -55,6 +62,10 @@ EXIT2 = [
      r"handeye\.yaml: key 'PSM1_tvec' puts the camera 0 mm"),
     ("handeye_inverted", "folder", lambda r: edit_yaml(r / "handeye.yaml", invert_handeye), KIN,
      r"handeye\.yaml: at this hand-eye the tool tip is behind the camera in all 12 tracked frames"),
+    ("handeye_off_image", "folder", lambda r: edit_yaml(r / "handeye.yaml", shift_tvec_x(300.0)),
+     ("--estimator", "smoother"),
+     r"handeye\.yaml: at this hand-eye the tool tip projects more than an image diagonal outside the image "
+     r"in all 12 tracked frames"),
     ("truth_nan_tx", "folder", truth_field(4, slice(2, 3), ["nan"]), KIN,
      r"truth\.csv: line 4 \(frame 2\): tx\.\.qw must be finite with a unit quaternion"),
     ("truth_zero_quaternion", "folder", truth_field(6, slice(5, 9), ["0"] * 4), KIN,

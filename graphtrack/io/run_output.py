@@ -10,7 +10,7 @@
 - :func:`require_tracked`: a run that tracked no frame is an error (exit status 2)
   naming the skip reasons and the first skipped frame, never a silent exit 0;
   :func:`require_tool_in_front`: so is a run whose tool tip was behind the camera in
-  every frame (naming handeye.yaml).
+  every frame, or far outside the image in every frame (naming handeye.yaml).
 """
 from __future__ import annotations
 
@@ -103,8 +103,16 @@ def require_tool_in_front(result: dict, handeye: str | Path) -> None:
     """InputError naming ``handeye`` (the recording's handeye.yaml) when frames were
     tracked but the tool tip lies behind the camera in every one of them (metrics.json
     ``frames_tip_in_front`` = 0): nothing of the tool was in view to track. Usually an
-    inverted or mis-signed calibration; else a tool retracted behind the camera throughout."""
+    inverted or mis-signed calibration; else a tool retracted behind the camera throughout.
+    So is a run whose tip projected more than an image diagonal outside the image in every
+    frame (``frames_tip_near_image`` = 0): a tool in view has its tip nearer than that."""
     n = result.get("frames_tracked", 0)
+    if n > 0 and result.get("frames_tip_in_front") and result.get("frames_tip_near_image") == 0:
+        raise InputError(f"{handeye}: at this hand-eye the tool tip projects more than an image diagonal "
+                         f"outside the image in all {n} tracked frames, so nothing in view could be tracked; "
+                         "check that the file maps the arm's base into the camera (X_camera = R(rvec) X_base "
+                         "+ tvec, tvec in millimetres), not the camera into the base, and that its key prefix "
+                         "names the recorded arm")
     if n > 0 and result.get("frames_tip_in_front") == 0:
         raise InputError(f"{handeye}: at this hand-eye the tool tip is behind the camera in all {n} tracked "
                          "frames, so nothing in view could be tracked; the file must map the arm's base into "

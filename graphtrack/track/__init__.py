@@ -156,10 +156,12 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         for a, b in stretches:
             warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
                   "motion model's prediction (std_* columns grow)", quiet)
+    warnings = rec.warnings
     if result.get("frames_tip_in_front") and not result.get("frames_tip_in_image"):
-        warn(f"warning: the tool tip projects outside the image in every tracked frame; check "
-             f"{rec.path / 'handeye.yaml'} (and robot.json's tool_tip)", quiet)
-    result["recording_warnings"] = capped(rec.warnings)
+        warnings.append(f"the tool tip projects outside the image in every tracked frame; check "
+                        f"{rec.path / 'handeye.yaml'} (and robot.json's tool_tip)")
+        warn(f"warning: {warnings[-1]}", quiet)
+    result["recording_warnings"] = capped(warnings)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
 
@@ -190,8 +192,11 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
     if rec.robot.tool_tip is not None:   # where the estimates put the tip (require_tool_in_front)
         front = np.all(np.isfinite(tips), axis=1)
         u, v = tips[front].T
-        inside = (u >= 0) & (u < ctx.camera.width) & (v >= 0) & (v < ctx.camera.height)
-        result.update(frames_tip_in_front=int(front.sum()), frames_tip_in_image=int(inside.sum()))
+        W, H, d = ctx.camera.width, ctx.camera.height, ctx.camera.diagonal
+        inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        near = (u >= -d) & (u < W + d) & (v >= -d) & (v < H + d)   # within one diagonal of the image
+        result.update(frames_tip_in_front=int(front.sum()), frames_tip_in_image=int(inside.sum()),
+                      frames_tip_near_image=int(near.sum()))
     if rec.labels is not None:
         result.update(tip_metrics(run.frames, tips, rec.labels, ctx.camera.diagonal, dict(run.skipped), run.read))
     if rec.labels_right and rec.calibration.stereo:
