@@ -94,3 +94,42 @@ def test_no_edge_bias_reaches_the_estimator(rec, tmp_path, command, estimator):
         opts = options_from_args(build_parser().parse_args(base + extra + ["--observation", observation]))
         est = make_estimator(estimator, ctx, **opts.estimation.keywords(estimator))
         assert est.bias is on, (extra, observation)
+
+
+def test_detect_gate_is_trackings_start_up_gate(rec, tmp_path):
+    """A nominal hand-eye some mm off puts the predicted shaft beyond the detector's own
+    gate; detect gates as tracking does before its first estimate (MAX_GATE_PX) and finds
+    the same edges it finds at the unshifted hand-eye."""
+    import shutil
+
+    import numpy as np
+    import yaml
+
+    from graphtrack.commands.detect import _predicted, start_gate
+    from graphtrack.detect import make_detector
+    from graphtrack.io.recording import open_recording
+    from graphtrack.track import MAX_GATE_PX
+
+    shifted = tmp_path / "shifted"
+    shutil.copytree(rec, shifted)
+    doc = yaml.safe_load((shifted / "handeye.yaml").read_text())
+    doc["PSM1_tvec"][0] += 14.0   # mm: about 70 px at this size
+    (shifted / "handeye.yaml").write_text(yaml.safe_dump(doc))
+
+    own = make_detector("learned").association.max_offset
+    assert start_gate(make_detector("learned")).max_offset == MAX_GATE_PX > own
+    a, b = open_recording(rec), open_recording(shifted)
+    frame = next(iter(a.frames()))
+    rho_a = _predicted(a, frame.q, a.handeye, a.calibration.left.K)[:, 0]
+    rho_b = _predicted(b, frame.q, b.handeye, b.calibration.left.K)[:, 0]
+    assert own < np.max(np.abs(rho_a - rho_b)) < MAX_GATE_PX - 20   # beyond the detector's gate
+
+    def edges(seq, out):
+        assert main(["detect", str(seq), "--out", str(out), "--max-frames", "4", "--quiet"]) == 0
+        with (out / "detections.csv").open() as f:
+            rows = list(csv.DictReader(f))
+        return np.array([[float(r[k]) for k in ("rho_0", "theta_0", "rho_1", "theta_1")] for r in rows])
+
+    nominal, off = edges(rec, tmp_path / "a"), edges(shifted, tmp_path / "b")
+    assert np.all(np.isfinite(off))
+    np.testing.assert_allclose(off, nominal, atol=0.5)

@@ -11,13 +11,15 @@ where Ee_i / El_i are the sizes of the endpoint set E_e (both endpoints) and
 the line set E_l of edge i at --alpha / --beta (the method's 10 px, 0.9),
 ``markers`` the marker centroids as "x y;x y;...", ``ms`` the detector's
 milliseconds. The gate is the shaft predicted by the nominal hand-eye
-calibration and the frame's joint readings. ``--video`` also writes
+calibration and the frame's joint readings, as wide as tracking's before its first
+estimate (``MAX_GATE_PX``). ``--video`` also writes
 ``detections.mp4`` (undistorted frames: candidate segments grey, shaft edges
 yellow, pixel sets, markers).
 """
 from __future__ import annotations
 
 import csv
+import dataclasses
 import sys
 import time
 
@@ -39,6 +41,7 @@ from graphtrack.io.recording import open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.video import StampedVideoWriter
 from graphtrack.robot.features import base_features, shaft_lines
+from graphtrack.track import MAX_GATE_PX
 
 
 def _num(x) -> str:
@@ -71,6 +74,15 @@ def _row(index: int, d, shape, alpha: float, beta: float, ms: float) -> list:
     return row + [len(mk), ";".join(f"{x:.2f} {y:.2f}" for x, y in mk), _num(ms)]
 
 
+def start_gate(detector):
+    """The detector's association gate widened to tracking's start-up gate (``MAX_GATE_PX``):
+    the prediction from the nominal hand-eye is as uncertain as a tracker's first frame."""
+    base = getattr(detector, "association", None)
+    if base is None or base.max_offset >= MAX_GATE_PX:
+        return base
+    return dataclasses.replace(base, max_offset=MAX_GATE_PX)
+
+
 #: the files a detect run writes (another run's are refused unless --overwrite)
 DETECT_FILES = ("detections.csv", "detections_right.csv", "detections.mp4")
 
@@ -94,6 +106,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
         E_right = rec.calibration.right_T_left @ rec.handeye
     detector, alpha, beta = options.detector, options.alpha, options.beta
     det = make_detector(detector, **options.detector_keywords())
+    gate = start_gate(det)
     writer = None
     if video:
         writer = StampedVideoWriter(out / "detections.mp4")
@@ -120,7 +133,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
                 skipped += 1
                 continue
             t = time.perf_counter()
-            d = detect_raw(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K))
+            d = detect_raw(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K), gate)
             ms = d.ms if d.ms else 1e3 * (time.perf_counter() - t)
             ms_all.append(ms)
             w.writerow(_row(item.index, d, item.image.shape[:2], alpha, beta, ms))
@@ -128,7 +141,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             if wr is not None and item.image_right is not None:
                 right = rec.calibration.right
                 t = time.perf_counter()
-                d_r = detect_raw(det, item.image_right, right, _predicted(rec, item.q, E_right, right.K))
+                d_r = detect_raw(det, item.image_right, right, _predicted(rec, item.q, E_right, right.K), gate)
                 wr.writerow(_row(item.index, d_r, item.image_right.shape[:2], alpha, beta,
                                  d_r.ms if d_r.ms else 1e3 * (time.perf_counter() - t)))
             if writer is not None:
