@@ -46,7 +46,8 @@ def test_handeye_single_arm_any_prefix_and_opencv_header(tmp_path):
 def test_handeye_named_arm_must_exist_and_several_arms_need_a_choice(tmp_path):
     p = tmp_path / "handeye.yaml"
     p.write_text("PSM2_tvec: [1, 2, 3]\nPSM2_rvec: [0, 0, 0]\n")
-    with pytest.raises(InputError, match=r"PSM1_tvec.*PSM2.*--arm"):
+    with pytest.raises(InputError, match=r"missing key 'PSM1_tvec'.* keys for PSM2 only.*"
+                                         r"rename PSM2_tvec and PSM2_rvec to PSM1_tvec and PSM1_rvec"):
         load_handeye(p, arm="PSM1")
     p.write_text("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, 0, 0]\nPSM3_tvec: [4, 5, 6]\nPSM3_rvec: [0, 0, 0]\n")
     with pytest.raises(InputError, match=r"several arms \(PSM1, PSM3\).*--arm"):
@@ -59,6 +60,7 @@ def test_handeye_named_arm_must_exist_and_several_arms_need_a_choice(tmp_path):
     ("PSM1_tvec: [1, 2, 3]\n", "PSM1_rvec"),
     ("PSM1_tvec: [1, two, 3]\nPSM1_rvec: [0, 0, 0]\n", "PSM1_tvec"),
     ("PSM1_tvec: [1, 2]\nPSM1_rvec: [0, 0, 0]\n", "PSM1_tvec"),
+    ("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [1, 0, 0, 0, 1, 0, 0, 0, 1]\n", "a rotation matrix?"),
     ("PSM1_tvec: [1, 2, .nan]\nPSM1_rvec: [0, 0, 0]\n", "PSM1_tvec"),
     ("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, .inf, 0]\n", "PSM1_rvec"),
     ("PSM2_tvec: [1, 2, 3]\nPSM2_rvec: [0, 0, 0]\nPSM3_tvec: [1, 2, 3]\n", "several arms"),

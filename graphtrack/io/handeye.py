@@ -61,10 +61,18 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
     prefix = handeye_arm(doc, TopicSelection(arm=arm), str(path))
     if f"{prefix}_tvec" not in doc:
         found = sorted(k[: -len("_tvec")] for k in doc if isinstance(k, str) and k.endswith("_tvec"))
-        raise InputError(f"{path}: missing key '{prefix}_tvec' (the file has hand-eye keys for: "
-                         f"{', '.join(found) or 'no arm'}); choose the arm with --arm")
+        others = f"keys for {', '.join(found)} only" if found else "no *_tvec key"
+        rename = (f"; if the calibration is of {prefix}, rename {found[0]}_tvec and {found[0]}_rvec to "
+                  f"{prefix}_tvec and {prefix}_rvec" if len(found) == 1 else "")
+        raise InputError(f"{path}: missing key '{prefix}_tvec': the arm tracked is {prefix} (--arm, or the "
+                         f"arm whose joints the recording carries) and the file has {others}; the keys' "
+                         f"prefix names the arm the calibration is of{rename}")
     t_mm = number_list(doc, f"{prefix}_tvec", path, (3,))
-    rvec = number_list(doc, f"{prefix}_rvec", path, (3,))
+    rvec = number_list(doc, f"{prefix}_rvec", path)
+    if rvec.size != 3:
+        matrix = " (a rotation matrix? cv2.Rodrigues turns one into this vector)" if rvec.size == 9 else ""
+        raise InputError(f"{path}: key '{prefix}_rvec' has {rvec.size} values, expected 3: an axis-angle "
+                         f"(Rodrigues) vector, radians{matrix}")
     if not np.linalg.norm(t_mm) <= MAX_TRANSLATION_MM:
         raise InputError(f"{path}: key '{prefix}_tvec' is {np.linalg.norm(t_mm):.4g} mm from the base; "
                          f"expected at most {MAX_TRANSLATION_MM:g} mm (the file is in millimetres)")
