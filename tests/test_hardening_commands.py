@@ -284,6 +284,23 @@ def test_a_jaw_topic_with_several_values_is_refused_and_an_empty_one_is_nan(tmp_
 
 
 # -- codec messages -------------------------------------------------------------------------
+def test_a_jaw_as_the_joint_messages_last_value_is_named(tmp_path):
+    """No jaw messages and joint messages one value longer than the DH joints: the refusal
+    says the jaw is read from its own topic only (it said to name a jaw topic, and naming
+    the joint topic then failed on its 7 values)."""
+    from graphtrack.io.topics import TopicSelection
+    from graphtrack.track import TrackOptions, _open
+
+    seq = _bag(tmp_path, missing_jaw=range(6), q=(0.1,) * 7)
+    with pytest.raises(InputError, match=r"no jaw readings \(no messages on /dvrk/PSM1/state_jaw_current.*"
+                                         r"state_joint_current hold 7 values for robot\.json's 6 DH joints: a jaw "
+                                         r"recorded as the joint message's last value is not read"):
+        _open(seq, TrackOptions(), True, TopicSelection())
+    with pytest.raises(InputError, match=r"no messages on /dvrk/PSM1/state_jaw_current; name the jaw topic "
+                                         r"with --jaw-topic\); the tool tip"):   # 6 values: no such note
+        _open(_bag(tmp_path / "six", missing_jaw=range(6)), TrackOptions(), True, TopicSelection())
+
+
 def test_codec_messages_stay_off_the_terminal(tmp_path):
     """Damaged PNG / JPEG, a link to nothing and a float TIFF: read in a fresh process whose
     stderr is captured; OpenCV's imread is the oracle that the damaged files do not decode."""

@@ -53,12 +53,25 @@ def _evaluated_tip(rec: Recording, tip_feature: str | None):
     return robot
 
 
+def _jaw_in_joints(rec: Recording) -> str:
+    """For a bag without jaw messages whose joint messages hold one value more than the DH
+    joints: the note that graphtrack reads the jaw from its own topic only."""
+    lengths = rec.source.joint_tables()[0].lengths
+    n = rec.n_joints
+    if n is None or not len(lengths) or not np.all(lengths == n + 1):
+        return ""
+    return (f" (its joint messages on {rec.source.joint_topic} hold {n + 1} values for robot.json's {n} DH "
+            "joints: a jaw recorded as the joint message's last value is not read; graphtrack reads the "
+            "jaw from a topic of its own, one value per message)")
+
+
 def _open(path: str | Path, options: TrackOptions, quiet: bool,
           topics: TopicSelection) -> tuple[Recording, TrackingContext]:
     """The recording (checked; its warnings printed unless quiet) and its tracking context."""
     rec = open_recording(path, topics=topics)
     if rec.robot.has_gripper and not rec.has_jaw:
         where = (f"no messages on {rec.source.jaw_topic}; name the jaw topic with --jaw-topic"
+                 f"{_jaw_in_joints(rec)}"
                  if isinstance(getattr(rec.source, "jaw_topic", None), str)
                  else "joints.csv's 'jaw' column holds no finite value")
         raise InputError(f"{rec.path}: robot.json says has_gripper but the recording has no jaw readings "
