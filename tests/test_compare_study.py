@@ -143,3 +143,17 @@ def test_repeats_run_seed_dependent_cells_and_report_their_mean(rec, tmp_path):
         == ["3", "4"]
     assert "(2 seeds)" in (out / "table.md").read_text()
     assert _compare([rec], out, "--estimators", "pf", "--repeats", "0") == 2
+
+
+def test_a_recording_without_labels_is_named_in_the_notes(rec, tmp_path):
+    """Without labels.csv every accuracy entry is n/a: table.md says why instead of
+    leaving a table of n/a and no plot unexplained."""
+    bare = tmp_path / "bare"
+    shutil.copytree(rec, bare)
+    (bare / "labels.csv").unlink()
+    out = tmp_path / "study"
+    assert _compare([rec, bare], out, "--estimators", "kinematics", "--observations", "line-intensities") == 0
+    md = (out / "table.md").read_text()
+    assert "- no labels.csv in bare: the tip error there is n/a" in md
+    assert "in rec" not in md.split("## Notes")[1]
+    assert (out / "accumulated_error_rec.png").is_file() and not (out / "accumulated_error_bare.png").exists()

@@ -37,7 +37,8 @@ def is_done(cell: Cell) -> bool:
 
 def recording_notes(cells: list[Cell]) -> list[str]:
     """The lines the cells' runs warned about their recordings (metrics.json's
-    ``recording_warnings``), each once, in cell order: a study's cells run quietly."""
+    ``recording_warnings``), each once, in cell order: a study's cells run quietly; and
+    one naming the recordings without labels.csv, whose accuracy entries are n/a."""
     lines: dict[str, None] = {}
     for cell in filter(is_done, cells):   # not a failed or out-of-date cell's
         try:
@@ -45,6 +46,12 @@ def recording_notes(cells: list[Cell]) -> list[str]:
         except (OSError, json.JSONDecodeError):
             continue
         lines.update(dict.fromkeys(str(w) for w in doc.get("recording_warnings") or []))
+    unlabelled = [rec for rec, path in dict.fromkeys((c.recording, c.path) for c in cells)
+                  if not (Path(path) / "labels.csv").is_file()]
+    if unlabelled:
+        lines[f"no labels.csv in {', '.join(unlabelled)}: the tip error there is n/a and no accumulated-error "
+              "plot is drawn; label the tool tip in some frames (docs/sequence-format.md, labels.csv) to "
+              "compare accuracy"] = None
     return list(lines)
 
 
