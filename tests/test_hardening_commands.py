@@ -139,7 +139,14 @@ def test_robot_blames_the_jawless_tool_and_writes_nothing(tmp_path, capsys):
                          "--out", out], capsys)
     line = error_line(err)
     assert code == 2 and "nojaw.json has no 'jaw' section" in line and "--features-from" in line
+    assert 'add "jaw": {} to the tool file' in line
     assert not out.exists()
+    # following that advice builds the robot
+    tool = tmp_path / "nojaw.json"
+    tool.write_text(json.dumps({**json.loads(tool.read_text()), "jaw": {}}))
+    code, err = run_cli(["robot", DVRK / "psm.json", tool, "--out", out], capsys)
+    assert code == 0, err
+    assert json.loads(out.read_text())["has_gripper"] is True
 
 
 # -- compare / detect -----------------------------------------------------------------------

@@ -34,7 +34,10 @@ def run(args) -> int:
         parse_robot(robot.to_json(), Path(f"{args.arm_config} + {args.tool_config} with the features of {source}"))
     except InputError as e:
         hint = "" if robot.has_gripper else (f" ({args.tool_config} has no 'jaw' section, so the chain has no "
-                                             "jaw links: give --features-from a robot.json of a tool without a jaw)")
+                                             "jaw links: if the tool has jaws (a needle driver, forceps), add "
+                                             "\"jaw\": {} to the tool file, as an older dVRK file may leave them "
+                                             "out; if it has none, give --features-from a robot.json of a tool "
+                                             "without a jaw)")
         raise InputError(f"{e}{hint}") from None
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
