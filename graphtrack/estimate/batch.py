@@ -234,7 +234,7 @@ class BatchEstimator:
                 E, covs[k], kept = self.initial[k], None, kept + 1
             cov = None if covs[k] is None else left_from_right_cov(E, covs[k])
             std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
-            out.append(Estimate(E, std, cov, {**estimate_extra(cov), "kept_online": float(away),
-                                              "outlier_online": float(self.outlier[k])}))
+            out.append(Estimate(E, std, cov, {**estimate_extra(cov), "kept_online": int(bool(away)),
+                                              "outlier_online": int(self.outlier[k])}))
         self.stats["frames_outside_prior"] = float(kept)
         return out

@@ -295,7 +295,7 @@ class ParticleFilter:
         self.cov = cov
         est = Estimate(self.E, std=np.sqrt(np.diag(cov)), cov=cov,
                        extra={**dict(zip(STD_COLUMNS, map(float, np.sqrt(np.diag(cov))))),
-                              "ess": ess, "outlier": float(rejected)})
+                              "ess": ess, "outlier": int(bool(rejected))})
         if ess < self.resample_threshold * self.N:
             self.resample(w, cov)
         return est

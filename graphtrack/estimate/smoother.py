@@ -388,7 +388,7 @@ class FixedLagSmootherEstimator:
         self.timings_ms.append(ms)
         extra = estimate_extra(cov)
         extra["smoother_ms"] = ms
-        extra["outlier"] = float(outlier)
+        extra["outlier"] = int(bool(outlier))
         std = None if cov is None else np.sqrt(np.clip(np.diag(cov), 0.0, None))
         return Estimate(pose.matrix(), std, cov, extra)
 
