@@ -80,6 +80,12 @@ def set_focal(v: float):
     return fn
 
 
+def renumber_from_1(rec):
+    """frames/000000.png ... 000011.png renamed 000001.png ... 000012.png."""
+    for p in sorted((rec / "frames").iterdir(), reverse=True):
+        p.rename(p.with_name(f"{int(p.stem) + 1:06d}{p.suffix}"))
+
+
 def keep(rec):
     pass
 
@@ -90,6 +96,9 @@ EXIT2 = [
     ("joints_csv_empty", "folder", write("joints.csv", ""), (), r"joints\.csv: header must be"),
     ("joints_csv_header_only", "folder", lambda r: edit_joints(r, lambda rows: rows[:1]), (),
      r"frames: holds 12 images but joints\.csv has 0 rows"),
+    ("frames_numbered_from_1", "folder", renumber_from_1, (),
+     r"frames: holds 12 images but joints\.csv has 12 rows \(first image without a row: 000012\.png\).*"
+     r"numbered from 1, frames from 0: rename them"),
     ("labels_missing_column", "folder", write("labels.csv", "frame,u\n0,10\n"), (),
      r"labels\.csv: header must be 'frame,u,v', found 'frame,u'"),
     ("robot_json_empty", "folder", write("robot.json", ""), (), r"robot\.json: not valid JSON"),

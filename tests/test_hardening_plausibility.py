@@ -229,3 +229,15 @@ def test_compare_with_a_crashed_cell_is_an_internal_error(base, tmp_path, capsys
     assert "internal error in 1 cell(s)" in err and "ZeroDivisionError" in err
     (doc,) = [json.loads(p.read_text()) for p in (tmp_path / "study").rglob("error.json")]
     assert doc["internal"] is True and "ZeroDivisionError" in doc["traceback"]
+
+
+@pytest.mark.parametrize("command", ["track", "detect"])
+def test_out_that_is_the_recording_is_refused(command, base, tmp_path, capsys):  # noqa: F811
+    """--out SEQ would put a run's files beside the recording's own (and make compare
+    take the recording as changed): refused before anything is written."""
+    rec = copy(base, "folder", tmp_path)
+    before = sorted(p.name for p in rec.iterdir())
+    code, err = run_cli([command, rec, "--out", rec / ".." / rec.name, "--quiet"], capsys)
+    assert code == 2 and re.search(r"--out \S+ is the recording folder itself; write the run's files into a "
+                                   r"folder of their own, e\.g\. --out \S+/run", error_line(err)), err
+    assert sorted(p.name for p in rec.iterdir()) == before

@@ -32,6 +32,16 @@ def output_path(value: str) -> str:
     return value
 
 
+def outside_recording(out, sequence) -> None:
+    """InputError when ``--out`` is the recording folder itself: a run's files would land
+    beside the recording's own (a folder inside it, e.g. SEQ/run, is fine)."""
+    from pathlib import Path
+
+    if Path(out).resolve() == Path(sequence).resolve():
+        raise InputError(f"--out {out} is the recording folder itself; write the run's files into a folder of "
+                         f"their own, e.g. --out {Path(out) / 'run'}")
+
+
 def add_source_arguments(p) -> None:
     """--arm and the topic overrides (bag recordings; the folder form reads only --arm)."""
     g = p.add_argument_group("recording")

@@ -26,7 +26,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
+from graphtrack.commands.common import add_source_arguments, output_path, outside_recording, source_from_args
 from graphtrack.commands.track import FORMATTER, add_detection_arguments
 from graphtrack.detect import detect_raw, make_detector
 from graphtrack.detect.draw import draw_detection
@@ -158,6 +158,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
 def run(args) -> int:
     if args.max_frames is not None and args.max_frames <= 0:
         raise InputError("--max-frames must be positive")
+    outside_recording(args.out, args.sequence)
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
                            topics=source_from_args(args), stereo=not args.mono, overwrite=args.overwrite)

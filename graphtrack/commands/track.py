@@ -12,7 +12,7 @@ import math
 from pathlib import Path
 
 from graphtrack.commands.common import (HelpFormatter, add_source_arguments, add_threads_argument, output_path,
-                                        source_from_args)
+                                        outside_recording, source_from_args)
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
@@ -140,6 +140,7 @@ def run(args) -> int:
     options = options_from_args(args)
     for line in unused_options(args):
         warn(line, args.quiet)
+    outside_recording(args.out, args.sequence)
     prepare_run_dir(args.out, overwrite=args.overwrite)
     result = track(args.sequence, args.out, options, video=args.video,
                    progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,

@@ -128,9 +128,13 @@ class FolderSource:
                 raise InputError(f"{frames_dir}: no images")
             extra = sorted(k for k in self._files if k >= self.n_images)
             if extra:
+                one_based = (0 not in self._files and len(self._files) == self.n_images
+                             and max(self._files) == self.n_images)
+                hint = ("; the images are numbered from 1, frames from 0: rename them (000001.png -> 000000.png, "
+                        "...) so that image k is joints.csv's row of frame k" if one_based else "")
                 raise InputError(f"{frames_dir}: holds {len(self._files)} images but joints.csv has "
                                  f"{self.n_images} rows (first image without a row: {self._files[extra[0]].name}); "
-                                 "every image needs its own row, images are never re-paired")
+                                 f"every image needs its own row, images are never re-paired{hint}")
             missing = self.n_images - len(self._files)
             if missing:
                 self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")
