@@ -75,6 +75,14 @@ def _fmt(x: float, nd: int = 2) -> str:
     return "n/a" if x is None or not math.isfinite(x) else f"{x:.{nd}f}"
 
 
+#: results.csv columns that count frames: written as integers
+COUNT_COLUMNS = ("frames_tracked", "frames_skipped")
+
+
+def _count(x) -> str:
+    return str(int(x)) if isinstance(x, (int, float)) and math.isfinite(x) else "n/a"
+
+
 def _get(d: dict, *keys, default=float("nan")):
     for k in keys:
         if not isinstance(d, dict) or k not in d:
@@ -187,7 +195,8 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
         for c, st in status:
             r = st.get("result", {})
             w.writerow([c.recording, c.row[0], c.row[1], c.options.get("seed", ""), st["state"]]
-                       + [_fmt(_get(r, *k.split(".")), 4) for k in cols] + [st.get("error", "")])
+                       + [_count(_get(r, k)) if k in COUNT_COLUMNS else _fmt(_get(r, *k.split(".")), 4)
+                          for k in cols] + [st.get("error", "")])
     return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "spread": spread,
             "errors": errors, "internal_errors": internal, "notes": notes}
 
