@@ -157,3 +157,6 @@ def test_a_recording_without_labels_is_named_in_the_notes(rec, tmp_path):
     assert "- no labels.csv in bare: the tip error there is n/a" in md
     assert "in rec" not in md.split("## Notes")[1]
     assert (out / "accumulated_error_rec.png").is_file() and not (out / "accumulated_error_bare.png").exists()
+    with (out / "results.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {r["frames_tracked"] for r in rows} == {"12"} and {r["frames_skipped"] for r in rows} == {"0"}
