@@ -212,7 +212,24 @@ def test_robot_without_shaft_tracks_from_markers(command, base, tmp_path, capsys
     doc = json.loads((out / "metrics.json").read_text())
     assert doc["frames_tracked"] == 12 and doc["frames_tip_in_front"] == 12
     assert all(math.isfinite(v) for v in (doc["tip_error_px"]["mean"], doc["translation_error_mm"]["mean"]))
+    assert any("tracking from the markers alone" in w for w in doc["recording_warnings"])
     assert_outputs_sane(out)
+
+
+@pytest.mark.parametrize("mutate, extra, why", [
+    (lambda d: d.update(shaft_features=[], point_features=[]), (), "no point_features"),
+    (lambda d: d.pop("shaft_features"), ("--no-markers",), r"its markers are off \(--no-markers\)"),
+])
+def test_robot_with_nothing_to_observe_is_refused(mutate, extra, why, base, tmp_path, capsys):  # noqa: F811
+    """No shaft and no markers to see: an image-based estimator would return the prior with
+    exit 0; refused before the run. The kinematics baseline still runs."""
+    rec = copy(base, "folder", tmp_path)
+    edit_json(rec / "robot.json", mutate)
+    code, err = run_cli(["track", rec, "--out", tmp_path / "out", "--quiet", *extra], capsys)
+    assert code == 2 and re.search(rf"robot\.json: no shaft_features and {why}: smoother has nothing in the "
+                                   r"images to track", error_line(err)), err
+    code, err = run_cli(["track", rec, "--out", tmp_path / "kin", "--quiet", "--estimator", "kinematics"], capsys)
+    assert code == 0, err
 
 
 def test_compare_with_a_crashed_cell_is_an_internal_error(base, tmp_path, capsys, monkeypatch):  # noqa: F811

@@ -65,6 +65,22 @@ def _jaw_in_joints(rec: Recording) -> str:
             "jaw from a topic of its own, one value per message)")
 
 
+def _observable(rec: Recording, ctx: TrackingContext, options: TrackOptions) -> list[str]:
+    """What an estimator that reads images can observe of the robot: InputError when
+    nothing (no shaft_features, and no point_features or --no-markers: the output would
+    be the prior); the warning line when only the markers."""
+    if ctx.robot.shaft_features:
+        return []
+    robot_json = rec.path / "robot.json"
+    if not ctx.robot.point_features or not options.detection.markers:
+        why = "no point_features" if not ctx.robot.point_features else "its markers are off (--no-markers)"
+        raise InputError(f"{robot_json}: no shaft_features and {why}: {options.estimator} has nothing in the "
+                         "images to track (its output would be handeye.yaml's kinematics); describe the shaft "
+                         "(shaft_features) or painted markers, or run --estimator kinematics")
+    return [f"{robot_json} has no shaft_features: tracking from the markers alone, without the global "
+            "start-up search"]
+
+
 def _open(path: str | Path, options: TrackOptions, quiet: bool,
           topics: TopicSelection) -> tuple[Recording, TrackingContext]:
     """The recording (checked; its warnings printed unless quiet) and its tracking context."""
@@ -117,9 +133,9 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     check_truth(path)   # for evaluation only (never given to the estimator): refused before the run
     out = writable_dir(out)
     pipe = Pipeline(ctx, options)
-    if pipe.needs_images and not ctx.robot.shaft_features:
-        warn(f"warning: {rec.path / 'robot.json'} has no shaft_features: tracking from the markers alone, "
-             "without the global start-up search", quiet)
+    notes = _observable(rec, ctx, options) if pipe.needs_images else []
+    for line in notes:
+        warn(f"warning: {line}", quiet)
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
     overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels,
                             labels_right=rec.labels_right) if video else None
@@ -169,7 +185,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         for a, b in stretches:
             warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
                   "motion model's prediction (std_* columns grow)", quiet)
-    warnings = rec.warnings
+    warnings = rec.warnings + notes
     if result.get("frames_tip_in_front") and not result.get("frames_tip_in_image"):
         warnings.append(f"the tool tip projects outside the image in every tracked frame; check "
                         f"{rec.path / 'handeye.yaml'} (and robot.json's tool_tip)")
