@@ -94,7 +94,14 @@ def test_calibration_as_opencv_filestorage_writes_it(tmp_path, header):
     ("ImageSize: [540, 960]\nD1: {data: [0,0,0,0,0]}\n", "K1"),
     ("ImageSize: [540, 960]\nK1: {data: [1,0,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n", "K1"),
     ("ImageSize: [540, 960]\nK1: {data: [1,0,0,0,1,0,0,0,x]}\nD1: {data: [0,0,0,0,0]}\n", "K1"),
-    ("ImageSize: [540, 960]\nK1: {data: [1,0,0,0,1,0,0,0,1]}\nD1: {data: [.nan,0,0,0,0]}\n", "D1"),
+    ("ImageSize: [540, 960]\nK1: {data: [800,0,480,0,800,270,0,0,1]}\nD1: {data: [.nan,0,0,0,0]}\n", "D1"),
+    # K divided by the image size (fx = 800 / 960)
+    ("ImageSize: [540, 960]\nK1: {data: [0.833,0,0.5,0,1.48,0.5,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n",
+     "K1': focal lengths 0.833, 1.48 px would see more than 170 deg"),
+    ("ImageSize: [540, 960]\nK1: {data: [40,0,480,0,40,270,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n",
+     "K1': focal lengths 40, 40 px would see more than 170 deg"),
+    ("ImageSize: [540, 960]\nK1: {data: [800,200,480,0,800,270,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n",
+     "K1': skew K[0,1] = 200 px is not supported"),
     ("ImageSize: [540, 960\n", "YAML"),
 ])
 def test_bad_calibration_names_file_and_key(tmp_path, text, needle):
@@ -181,3 +188,13 @@ def test_size_mismatch_hint():
     assert "by 2)" in size_mismatch_hint((1080, 1920), (540, 960))
     assert "by 0.5)" in size_mismatch_hint((270, 480), (540, 960))
     assert size_mismatch_hint((480, 640), (540, 960)) == ""       # 4:3 against 16:9: no scale fits
+
+
+def test_a_skew_under_half_a_pixel_at_the_edge_is_dropped(tmp_path):
+    """|K[0,1]| <= fy / h moves no pixel of the image by more than half a pixel: read, as 0."""
+    p = tmp_path / "camera_calibration.yaml"
+    p.write_text("ImageSize: [540, 960]\nK1: {data: [800,1.2,480,0,800,270,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n")
+    K = load_calibration(p).left.K
+    assert K[0, 1] == 0.0 and K[0, 0] == 800
+    # the bound: the skew's shift s * y_n at the image's top or bottom row (|y_n| = (h/2) / fy)
+    assert 1.2 * (270 / 800) < 0.5 < (800 / 540 + 0.1) * (270 / 800)

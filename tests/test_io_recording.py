@@ -582,6 +582,20 @@ def test_a_principal_point_far_off_centre_is_warned_about(tmp_path):
         assert len(got) == far and (not far or got[0].startswith(f"{seq / 'camera_calibration.yaml'}: K1's"))
 
 
+def test_focal_lengths_far_apart_are_warned_about(tmp_path):
+    """fy = 2 fx (a K of another height, or interlaced fields): a warning naming K1; 10 %
+    apart says nothing."""
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    for fy, warned in ((55.0, False), (100.0, True)):
+        cam = Camera(np.array([[50.0, 0, W / 2], [0, fy, H / 2], [0, 0, 1]]), np.zeros(5), H, W)
+        save_calibration(seq / "camera_calibration.yaml", Calibration(cam))
+        got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "focal lengths" in w]
+        assert len(got) == warned
+    assert got[0].startswith(f"{seq / 'camera_calibration.yaml'}: K1's focal lengths fx = 50, fy = 100 px "
+                             "differ by a factor 0.5")
+
+
 def test_a_baseline_with_the_right_camera_on_the_left_is_warned_about(tmp_path):
     """T's sign flipped (or the images swapped) moved a simulated stereo run's tip 1.5 -> 30 px
     with exit 0: a warning naming T; the dVRK's T = (-5, 0, 0.17) mm says nothing."""

@@ -255,19 +255,36 @@ def _image_size(doc: dict, path: Path) -> tuple[int, int]:
     return int(size[0]), int(size[1])
 
 
+#: the shortest focal length accepted, as a fraction of the image's longer side: a
+#: pinhole camera with f = 0.05 w sees 2 atan(10) = 169 deg across (endoscopes: 60-90 deg)
+MIN_FOCAL_FRACTION = 0.05
+
+
 def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
-    """K: focal lengths in [1, 1e6] px, principal point within one image size of the
-    image, last row (0, 0, 1), K[1, 0] = 0."""
+    """K: focal lengths in [1, 1e6] px and at least MIN_FOCAL_FRACTION of the image's
+    longer side, principal point within one image size of the image, last row (0, 0, 1),
+    K[1, 0] = 0, skew K[0, 1] at most fy / h px (then set to 0: the camera has none)."""
     K = _matrix(doc, key, 9, path).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-    if not (1 <= fx <= 1e6 and 1 <= fy <= 1e6):   # below 1 px: a field of view of nearly 180 deg
+    if not (0 < fx <= 1e6 and 0 < fy <= 1e6):
         raise InputError(f"{path}: key '{key}': focal lengths must be in [1, 1e6] px, got {fx:g}, {fy:g}")
+    if min(fx, fy) < max(1.0, MIN_FOCAL_FRACTION * max(w, h)):
+        raise InputError(f"{path}: key '{key}': focal lengths {fx:g}, {fy:g} px would see more than 170 deg "
+                         f"across the {w}x{h} image; K is in pixels (a K divided by the image size, as some "
+                         "tools store it, must be multiplied back)")
     if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
         raise InputError(f"{path}: key '{key}': principal point ({cx:g}, {cy:g}) is far outside the "
                          f"{w}x{h} image")
-    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1 or abs(K[0, 1]) > fx:
+    if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
         raise InputError(f"{path}: key '{key}' is not an intrinsic matrix (last row must be 0 0 1, "
                          "K[1,0] = 0)")
+    if abs(K[0, 1]) > fy / h:   # moves a pixel at the image's top or bottom edge by more than 0.5 px
+        raise InputError(f"{path}: key '{key}': skew K[0,1] = {K[0, 1]:g} px is not supported: graphtrack's "
+                         "camera is OpenCV's, without skew; calibrate without it (OpenCV never estimates "
+                         f"it; MATLAB: EstimateSkew false). A skew up to fy / height = {fy / h:.3g} (half a "
+                         "pixel at the image's edge) is ignored")
+    K = K.copy()
+    K[0, 1] = 0.0
     return K
 
 

@@ -337,6 +337,10 @@ def _consistency_notes(rec: Recording) -> list[str]:
             notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s principal point "
                          f"({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) px lies outside the middle half of the "
                          f"{cam.width}x{cam.height} image: a calibration of another image size?")
+        if cam is not None and not 0.8 <= cam.K[0, 0] / cam.K[1, 1] <= 1.25:
+            notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s focal lengths fx = {cam.K[0, 0]:g}, "
+                         f"fy = {cam.K[1, 1]:g} px differ by a factor {cam.K[0, 0] / cam.K[1, 1]:.2g}: pixels "
+                         "that are not square (interlaced fields), or a K of another image size in one direction?")
     right_dir = rec.path / "frames_right"
     if isinstance(rec.source, FolderSource) and right_dir.exists() and not right_dir.is_dir():
         notes.append(f"{right_dir}: not a folder, so the recording has no right images; "

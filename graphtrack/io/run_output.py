@@ -112,7 +112,7 @@ def require_tool_in_front(result: dict, handeye: str | Path) -> None:
                          f"outside the image in all {n} tracked frames, so nothing in view could be tracked; "
                          "check that the file maps the arm's base into the camera (X_camera = R(rvec) X_base "
                          "+ tvec, tvec in millimetres), not the camera into the base, and that its key prefix "
-                         "names the recorded arm")
+                         "names the recorded arm (or K1 and D1 in camera_calibration.yaml, which project it)")
     if n > 0 and result.get("frames_tip_in_front") == 0:
         raise InputError(f"{handeye}: at this hand-eye the tool tip is behind the camera in all {n} tracked "
                          "frames, so nothing in view could be tracked; the file must map the arm's base into "

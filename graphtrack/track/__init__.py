@@ -188,7 +188,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     warnings = rec.warnings + notes
     if result.get("frames_tip_in_front") and not result.get("frames_tip_in_image"):
         warnings.append(f"the tool tip projects outside the image in every tracked frame; check "
-                        f"{rec.path / 'handeye.yaml'} (and robot.json's tool_tip)")
+                        f"{rec.path / 'handeye.yaml'}, K1 and D1 in camera_calibration.yaml and robot.json's "
+                        "tool_tip")
         warn(f"warning: {warnings[-1]}", quiet)
     result["recording_warnings"] = capped(warnings)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
