@@ -64,6 +64,8 @@ def test_handeye_named_arm_must_exist_and_several_arms_need_a_choice(tmp_path):
     ("PSM1_tvec: [1, 2, .nan]\nPSM1_rvec: [0, 0, 0]\n", "PSM1_tvec"),
     ("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, .inf, 0]\n", "PSM1_rvec"),
     ("PSM2_tvec: [1, 2, 3]\nPSM2_rvec: [0, 0, 0]\nPSM3_tvec: [1, 2, 3]\n", "several arms"),
+    ("ECM_tvec: [1, 2, 3]\nECM_rvec: [0, 0, 0]\n", "keys 'ECM_tvec' / 'ECM_rvec' name no arm graphtrack tracks"),
+    ("PSM4_tvec: [1, 2, 3]\nPSM4_rvec: [0, 0, 0]\n", "(PSM1, PSM2, PSM3)"),
     ("[1, 2, 3]\n", "mapping"),
     ("PSM1_tvec: [1, 2\n", "YAML"),
 ])
