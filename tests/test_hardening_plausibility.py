@@ -248,7 +248,7 @@ def test_compare_with_a_crashed_cell_is_an_internal_error(base, tmp_path, capsys
     assert doc["internal"] is True and "ZeroDivisionError" in doc["traceback"]
 
 
-@pytest.mark.parametrize("command", ["track", "detect"])
+@pytest.mark.parametrize("command", ["track", "detect", "compare"])
 def test_out_that_is_the_recording_is_refused(command, base, tmp_path, capsys):  # noqa: F811
     """--out SEQ would put a run's files beside the recording's own (and make compare
     take the recording as changed): refused before anything is written."""

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
+from graphtrack.commands.common import add_source_arguments, output_path, outside_recording, source_from_args
 from graphtrack.commands.track import (FORMATTER, add_detection_arguments, add_estimator_arguments,
                                        estimator_options_from_args)
 from graphtrack.detect.base import OBSERVATION_MODELS
@@ -46,13 +46,15 @@ def study_options_from_args(args) -> StudyOptions:
 
 def run(args) -> int:
     options = study_options_from_args(args)
+    for sequence in args.sequences:
+        outside_recording(args.out, sequence)
     data = run_study(args.sequences, args.out, options, workers=args.workers, ray_address=args.ray,
                      quiet=args.quiet)
     print(format_table(data))  # the table is the command's result: printed also with --quiet
     if not args.quiet:
         print(f"\n{data['ran']} cells computed, {data['reused']} reused; "
               f"wrote {args.out}/table.md, table.csv, runtime.csv, results.csv and "
-              f"accumulated_error_<recording>.png")
+              f"accumulated_error_<recording>.png (recordings with labels.csv)")
         for n in data["notes"]:
             print(f"note: {n}")
     for rec, key, msg in data["errors"]:
