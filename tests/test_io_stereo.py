@@ -123,7 +123,41 @@ def test_corrupt_right_file_and_wrong_size(tmp_path):
     rec = open_recording(seq, **NO_ROBOT)
     out = list(rec.frames())
     assert [f.image_right is None for f in out] == [False, True, False, False, True, False]
-    assert rec.right_skips == {"missing": 0, "corrupt": 1, "image_size": 1}
+    assert rec.right_skips == {"missing": 0, "corrupt": 1, "image_size": 1, "same_as_left": 0}
+
+
+def test_a_right_image_copied_from_the_left_is_left_only(tmp_path):
+    """frames_right/ a copy of frames/ (tracked 0.35 -> 17.5 mm with exit 0): each identical
+    pair is a counted same_as_left skip, and the warning says what it means."""
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(False))
+    for k in (0, 2, 3):
+        frames[k].image_right = frames[k].image.copy()
+    write_folder(seq, frames)
+    rec = open_recording(seq, **NO_ROBOT)
+    out = list(rec.frames())
+    assert [f.image_right is None for f in out] == [True, False, True, True, False, False]
+    assert rec.right_skips["same_as_left"] == 3
+    assert "same_as_left 3); left-only for those: a right image identical to its left one is a copy" in \
+        rec.right_skip_warning
+
+
+def test_right_images_beyond_the_rows_are_refused(tmp_path):
+    """frames_right/ numbered from 1 (each right image paired with the wrong frame), or holding
+    extra images: refused as frames/ is."""
+    seq = tmp_path / "seq"
+    write_folder(seq, make_seq(seq, stereo_calibration(False)))
+    right = seq / "frames_right"
+    for q in sorted(right.iterdir(), reverse=True):
+        q.rename(q.with_name(f"{int(q.stem) + 1:06d}{q.suffix}"))
+    with pytest.raises(InputError, match=r"frames_right: holds 6 images but joints\.csv has 6 rows \(first image "
+                                         r"without a row: 000006\.png\).*numbered from 1, frames from 0"):
+        open_recording(seq, **NO_ROBOT)
+    (right / "000006.png").rename(right / "000000.png")
+    (right / "000009.png").write_bytes((right / "000001.png").read_bytes())
+    with pytest.raises(InputError, match=r"frames_right: holds 7 images but joints\.csv has 6 rows \(first image "
+                                         r"without a row: 000009\.png\); every image needs its own row"):
+        open_recording(seq, **NO_ROBOT)
 
 
 def test_bag_right_matched_by_stamp_not_order(tmp_path):

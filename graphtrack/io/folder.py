@@ -95,6 +95,20 @@ def _parse_joints_csv(text: str, path: Path):
             np.array(jaw, dtype=float))
 
 
+def _check_numbering(folder: Path, files: dict, n_rows: int) -> None:
+    """InputError when ``folder`` holds an image numbered beyond joints.csv's rows (frame k
+    is row k: images are never re-paired), saying so when they are numbered from 1."""
+    extra = sorted(k for k in files if k >= n_rows)
+    if not extra:
+        return
+    one_based = 0 not in files and len(files) == n_rows and max(files) == n_rows
+    hint = ("; the images are numbered from 1, frames from 0: rename them (000001.png -> 000000.png, "
+            "...) so that image k is joints.csv's row of frame k" if one_based else "")
+    raise InputError(f"{folder}: holds {len(files)} images but joints.csv has {n_rows} rows (first image "
+                     f"without a row: {files[extra[0]].name}); every image needs its own row, images are "
+                     f"never re-paired{hint}")
+
+
 class FolderSource:
     """frames/ (or video.mp4) + joints.csv; validated at construction, streamed later.
 
@@ -121,20 +135,14 @@ class FolderSource:
         right_dir = self.path / "frames_right"
         #: frame -> right image file (frames_right/, same names as frames/); None: mono
         self.right_files = _image_files(right_dir) if right_dir.is_dir() else None
+        if self.right_files:
+            _check_numbering(right_dir, self.right_files, self.n_images)
         self.right_skips = {"missing": 0, "corrupt": 0}
         if frames_dir.is_dir():
             self._files = _image_files(frames_dir)
             if self.n_images and not self._files:
                 raise InputError(f"{frames_dir}: no images")
-            extra = sorted(k for k in self._files if k >= self.n_images)
-            if extra:
-                one_based = (0 not in self._files and len(self._files) == self.n_images
-                             and max(self._files) == self.n_images)
-                hint = ("; the images are numbered from 1, frames from 0: rename them (000001.png -> 000000.png, "
-                        "...) so that image k is joints.csv's row of frame k" if one_based else "")
-                raise InputError(f"{frames_dir}: holds {len(self._files)} images but joints.csv has "
-                                 f"{self.n_images} rows (first image without a row: {self._files[extra[0]].name}); "
-                                 f"every image needs its own row, images are never re-paired{hint}")
+            _check_numbering(frames_dir, self._files, self.n_images)
             missing = self.n_images - len(self._files)
             if missing:
                 self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")

@@ -82,6 +82,7 @@ class Recording:
     notes: list[str] = field(default_factory=list)
     labels_right: dict[int, np.ndarray] | None = None
     right_size_skips: int = 0
+    right_same_skips: int = 0
 
     def __len__(self) -> int:
         return len(self.source)
@@ -101,8 +102,10 @@ class Recording:
         sk = self.right_skips
         if not sum(sk.values()):
             return None
+        copy = (": a right image identical to its left one is a copy of it, and frames_right/ (or the right "
+                "image topic) must hold the right camera's images" if sk.get("same_as_left") else "")
         return (f"{self.path}: {sum(sk.values())} frames without a usable right image "
-                f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those")
+                f"({', '.join(f'{k} {v}' for k, v in sk.items() if v)}); left-only for those{copy}")
 
     @property
     def stereo(self) -> bool:
@@ -118,8 +121,10 @@ class Recording:
     def right_skips(self) -> dict[str, int]:
         """Frames yielded so far with image_right None although the recording is stereo:
         {"missing": no right image within the stamp tolerance / no file, "corrupt": does not
-        decode, "image_size": differs from ImageSize}."""
-        return {**self.source.right_skips, "image_size": self.right_size_skips}
+        decode, "image_size": differs from ImageSize, "same_as_left": identical to the left
+        image, a copy of it (no stereo rig gives two identical images)}."""
+        return {**self.source.right_skips, "image_size": self.right_size_skips,
+                "same_as_left": self.right_same_skips}
 
     @property
     def kind(self) -> str:
@@ -200,7 +205,18 @@ class Recording:
                 if f.image_right is not None and f.image_right.shape[:2] != (h, w):
                     f.image_right = None
                     self.right_size_skips += 1
+                elif f.image_right is not None and same_image(f.image, f.image_right):
+                    f.image_right = None
+                    self.right_same_skips += 1
                 yield f
+
+
+def same_image(a: np.ndarray, b: np.ndarray) -> bool:
+    """True when two images are identical (a sparse grid first: different images differ
+    there, so a stereo pair costs microseconds)."""
+    if a.shape != b.shape or not np.array_equal(a[::16, ::16], b[::16, ::16]):
+        return False
+    return bool(np.array_equal(a, b))
 
 
 def flat_image(image: np.ndarray) -> str | None:
