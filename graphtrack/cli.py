@@ -75,12 +75,13 @@ def _end_progress_bars() -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     set_thread_environment(_threads_in(argv))
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 2
+    args = None
     try:
+        parser = build_parser()   # imports the commands' libraries: Ctrl-C may come here too
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 2
         if hasattr(args, "threads"):
             limit_threads(threads_from_args(args))
         return int(args.func(args) or 0)
@@ -89,7 +90,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"graphtrack: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("graphtrack: interrupted (results written so far are kept)", file=sys.stderr)
+        _end_progress_bars()
+        out = getattr(args, "out", None)
+        kept = f" (the files written so far in {out} are kept)" if out and Path(out).is_dir() else ""
+        print(f"graphtrack: interrupted{kept}", file=sys.stderr)
         return 130
     except Exception as e:  # noqa: BLE001 - last resort: a bug, not bad input
         if os.environ.get("GRAPHTRACK_DEBUG"):

@@ -248,6 +248,19 @@ def test_interrupted_run_leaves_complete_rows(sig, tmp_path):
     assert_outputs_sane(out)
 
 
+def test_ctrl_c_while_the_libraries_load_is_one_line(tmp_path, monkeypatch, capsys):
+    """Ctrl-C before the command runs (the commands' imports take a second): exit 130, one
+    line, no traceback, and no claim of kept files where no output folder exists."""
+    from graphtrack import cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["track", str(tmp_path / "rec"), "--out", str(tmp_path / "out")]) == 130
+    assert capsys.readouterr().err == "graphtrack: interrupted\n"
+
+
 @pytest.mark.parametrize("kind", ["duplicate", "swapped"])
 def test_bag_image_stamps_out_of_order_are_counted_and_warned(kind, base, tmp_path, capsys):  # noqa: F811
     """A bag whose image stamps repeat: the repeat is skipped (``stamp_order``), warned about
