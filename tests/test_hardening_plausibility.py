@@ -164,7 +164,22 @@ def test_detect_with_no_readable_frame(base, tmp_path, capsys):  # noqa: F811
         p.write_bytes(b"not an image")
     code, err = run_cli(["detect", rec, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 2
-    assert re.search(r"no frame could be detected on: 12 of 12 frames skipped", error_line(err))
+    assert re.search(r"no frame could be detected on: 12 of 12 frames skipped \(corrupt_image: 12\); "
+                     r"first: frame 0: ", error_line(err)), err
+
+
+def test_detect_names_why_frames_were_skipped(base, tmp_path, capsys):  # noqa: F811
+    """Half the frames of another size: detect says which reason and which frame, as track does."""
+    from graphtrack.cli import main
+
+    rec = copy(base, "folder", tmp_path)
+    for p in sorted((rec / "frames").iterdir())[6:]:
+        img = cv2.imread(str(p))
+        cv2.imwrite(str(p), cv2.resize(img, (img.shape[1] // 2, img.shape[0] // 2)))
+    assert main(["detect", str(rec), "--out", str(tmp_path / "out"), "--detector", "canny"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"12 frames \(6 skipped: image_size: 6; first: frame 6: image is 240x135 px", printed), printed
+    assert len((tmp_path / "out" / "detections.csv").read_text().splitlines()) == 1 + 6
 
 
 def test_compare_with_a_failed_cell(base, tmp_path, capsys):  # noqa: F811

@@ -116,6 +116,8 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
     header += ["n_markers", "markers", "ms"]
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
     n = skipped = 0
+    reasons: dict[str, int] = {}
+    first_skip = ""
     ms_all = []
     with (out / "detections.csv").open("w", newline="") as f, \
             tqdm(total=total, desc=f"detect {detector}", unit="frame", file=sys.stderr, disable=quiet) as bar:
@@ -131,6 +133,10 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             bar.update(1)
             if isinstance(item, FrameError) or item.image is None:
                 skipped += 1
+                reason = item.reason if isinstance(item, FrameError) else "no_image"
+                reasons[reason] = reasons.get(reason, 0) + 1
+                first_skip = first_skip or (str(item) if isinstance(item, FrameError)
+                                            else f"frame {item.index}: no image")
                 continue
             t = time.perf_counter()
             d = detect_raw(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K), gate)
@@ -151,7 +157,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
         writer.close()
     if right_csv is not None:
         right_csv.close()
-    return {"frames": n, "frames_skipped": skipped,
+    return {"frames": n, "frames_skipped": skipped, "skipped_reasons": reasons, "first_skip": first_skip,
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
 
 
@@ -162,12 +168,14 @@ def run(args) -> int:
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
                            topics=source_from_args(args), stereo=not args.mono, overwrite=args.overwrite)
+    counts = ", ".join(f"{k}: {v}" for k, v in sorted(res["skipped_reasons"].items()))
     if res["frames"] == res["frames_skipped"]:   # never exit 0 with nothing detected
         raise InputError(f"{args.sequence}: no frame could be detected on: {res['frames_skipped']} of "
-                         f"{res['frames']} frames skipped (images missing or corrupt, or joints unusable); "
+                         f"{res['frames']} frames skipped ({counts}); first: {res['first_skip']}; "
                          f"{args.out}/detections.csv holds only its header")
     if not args.quiet:
-        print(f"{res['frames']} frames ({res['frames_skipped']} skipped), detector median "
+        why = f": {counts}; first: {res['first_skip']}" if res["frames_skipped"] else ""
+        print(f"{res['frames']} frames ({res['frames_skipped']} skipped{why}), detector median "
               f"{res['ms_median']:.1f} ms; wrote {args.out}/detections.csv"
               + (", detections.mp4" if args.video else ""))
     return 0
