@@ -60,6 +60,29 @@ def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
+def _csv_number(text: str, column: str, path: Path, line: int) -> float:
+    """One joints.csv value: a plain decimal number (NaN when empty). Python's float() also
+    takes '1_000' and non-ASCII digits, which no CSV writer means as numbers: refused too."""
+    t = text.strip()
+    if not t:
+        return math.nan
+    try:
+        if not t.isascii() or "_" in t:
+            raise ValueError
+        return float(t)
+    except ValueError:
+        hint = (" (a decimal comma? write 0.5, not 0,5)" if "," in t else
+                " (stamps are seconds, a number, not a date)" if column == "stamp" else "")
+        raise InputError(f"{path}: line {line}: {column} {t!r} is not a number{hint}") from None
+
+
+def _csv_int(text: str, path: Path, line: int) -> int:
+    t = text.strip()
+    if not (t.isascii() and t.isdigit()):
+        raise InputError(f"{path}: line {line}: frame {t!r} is not a whole number (frames are 0, 1, 2, ...)")
+    return int(t)
+
+
 def _parse_joints_csv(text: str, path: Path):
     reader = csv.reader(text.splitlines())
     header = [h.strip() for h in next(reader, [])]
@@ -74,11 +97,8 @@ def _parse_joints_csv(text: str, path: Path):
             continue
         if len(row) != len(header):
             raise InputError(f"{path}: line {line} has {len(row)} fields, expected {len(header)}")
-        try:
-            frame = int(row[0])
-            vals = [float(v) if v.strip() else math.nan for v in row[1:]]
-        except ValueError:
-            raise InputError(f"{path}: line {line} holds a value that is not a number") from None
+        frame = _csv_int(row[0], path, line)
+        vals = [_csv_number(v, name, path, line) for v, name in zip(row[1:], header[1:])]
         if frame != len(stamps):
             raise InputError(f"{path}: line {line}: frame {frame}, expected {len(stamps)} "
                              "(frames must be 0, 1, 2, ... in order)")
