@@ -273,3 +273,21 @@ def test_out_that_is_the_recording_is_refused(command, base, tmp_path, capsys): 
     assert code == 2 and re.search(r"--out \S+ is the recording folder itself; write the run's files into a "
                                    r"folder of their own, e\.g\. --out \S+/run", error_line(err)), err
     assert sorted(p.name for p in rec.iterdir()) == before
+
+
+def test_greyscale_frames_warn_that_markers_cannot_be_found(base, tmp_path, capsys):  # noqa: F811
+    """Markers are found by colour: greyscale frames track from the shaft alone, said once
+    (and kept in metrics.json)."""
+    from graphtrack.cli import main
+
+    rec = copy(base, "folder", tmp_path)
+    for p in (rec / "frames").iterdir():
+        cv2.imwrite(str(p), cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2GRAY))
+    out = tmp_path / "out"
+    assert main(["track", str(rec), "--out", str(out), "--max-frames", "3"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("the frames are greyscale: painted markers are found by their colour") == 1, err
+    doc = json.loads((out / "metrics.json").read_text())
+    assert any("greyscale" in w for w in doc["recording_warnings"])
+    assert main(["track", str(rec), "--out", str(tmp_path / "nm"), "--max-frames", "3", "--no-markers"]) == 0
+    assert "greyscale" not in capsys.readouterr().err

@@ -568,7 +568,7 @@ def test_folder_without_joints_csv(tmp_path):
 def test_a_principal_point_far_off_centre_is_warned_about(tmp_path):
     """K scaled for an image twice the size puts (cx, cy) near the corner: a warning naming
     camera_calibration.yaml; K at the centre, or a few per cent off it, says nothing."""
-    from graphtrack.io.recording import off_centre
+    from graphtrack.io.consistency import off_centre
 
     seq = write_meta(tmp_path / "seq")
     write_folder(seq, make_frames(2))
@@ -599,7 +599,7 @@ def test_focal_lengths_far_apart_are_warned_about(tmp_path):
 def test_a_baseline_with_the_right_camera_on_the_left_is_warned_about(tmp_path):
     """T's sign flipped (or the images swapped) moved a simulated stereo run's tip 1.5 -> 30 px
     with exit 0: a warning naming T; the dVRK's T = (-5, 0, 0.17) mm says nothing."""
-    from graphtrack.io.recording import left_of_left
+    from graphtrack.io.consistency import left_of_left
 
     assert left_of_left([5e-3, 0, 1.7e-4]) and not left_of_left([-5e-3, 0, 1.7e-4])
     assert not left_of_left([1e-3, -5e-3, 0])           # a vertical rig: not judged

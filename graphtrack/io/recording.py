@@ -50,6 +50,7 @@ import numpy as np
 from graphtrack.errors import FrameError, InputError, read_text
 from graphtrack.geometry.camera import Calibration, load_calibration, size_mismatch_hint
 from graphtrack.io.bag import BagSource
+from graphtrack.io.consistency import consistency_notes
 from graphtrack.io.folder import FolderSource
 from graphtrack.io.handeye import load_handeye
 from graphtrack.io.joint_units import check_table, joint_bounds, out_of_range
@@ -323,60 +324,8 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
                          f"but {path / 'robot.json'} has {n_joints} DH joints")
     rec = Recording(path, calibration, handeye, robot, labels, n_joints, source,
                     notes=notes, labels_right=labels_r)
-    rec.notes += _consistency_notes(rec)
+    rec.notes += consistency_notes(rec)
     return rec
-
-
-def _consistency_notes(rec: Recording) -> list[str]:
-    """Lines for the user on parts of a recording that will not be used: labels of frames
-    the recording does not have (labels of another recording?), and right images without
-    the right camera's calibration (tracked left-only)."""
-    notes = []
-    for name, labels in (("labels.csv", rec.labels), ("labels_right.csv", rec.labels_right)):
-        beyond = sorted(k for k in (labels or {}) if k >= len(rec))
-        if beyond:
-            notes.append(f"{rec.path / name}: {len(beyond)} labels of frames the recording does not have "
-                         f"(it has {len(rec)} frames; first: frame {beyond[0]}); they are not scored")
-    if rec.has_right_images and rec.calibration.right is None:
-        notes.append(f"{rec.path}: right images but no K2, D2, R, T in camera_calibration.yaml; "
-                     "tracking the left image only")
-    if rec.labels_right is not None and not rec.stereo:
-        notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
-                     "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
-    if rec.calibration.stereo and left_of_left(rec.calibration.T):
-        t_mm = np.round(1e3 * np.ravel(rec.calibration.T), 2).tolist()
-        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {t_mm} mm puts the right camera to the left "
-                     "of the left one (X_right = R X_left + T has T_x < 0 for a right camera on the right): "
-                     "are T's sign or the left and right images swapped?")
-    for key, cam in (("K1", rec.calibration.left), ("K2", rec.calibration.right)):
-        if cam is not None and off_centre(cam):
-            notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s principal point "
-                         f"({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) px lies outside the middle half of the "
-                         f"{cam.width}x{cam.height} image: a calibration of another image size?")
-        if cam is not None and not 0.8 <= cam.K[0, 0] / cam.K[1, 1] <= 1.25:
-            notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s focal lengths fx = {cam.K[0, 0]:g}, "
-                         f"fy = {cam.K[1, 1]:g} px differ by a factor {cam.K[0, 0] / cam.K[1, 1]:.2g}: pixels "
-                         "that are not square (interlaced fields), or a K of another image size in one direction?")
-    right_dir = rec.path / "frames_right"
-    if isinstance(rec.source, FolderSource) and right_dir.exists() and not right_dir.is_dir():
-        notes.append(f"{right_dir}: not a folder, so the recording has no right images; "
-                     "tracking the left image only")
-    return notes
-
-
-def left_of_left(T) -> bool:
-    """True when a mostly horizontal baseline T (right-from-left, |T_x| the largest
-    component) has T_x > 0: the "right" camera sits left of the left one."""
-    t = np.ravel(T).astype(float)
-    return bool(t.size == 3 and abs(t[0]) >= np.abs(t[1:]).max() and t[0] > 0)
-
-
-def off_centre(cam) -> bool:
-    """True when the camera's principal point lies outside the middle half of its image
-    (|cx - w/2| > w/4 or |cy - h/2| > h/4): endoscope optics centre it within a few
-    per cent, and K scaled for another resolution puts it there."""
-    cx, cy = float(cam.K[0, 2]), float(cam.K[1, 2])
-    return abs(cx - cam.width / 2) > cam.width / 4 or abs(cy - cam.height / 2) > cam.height / 4
 
 
 def is_ros2_bag(folder: Path) -> bool:

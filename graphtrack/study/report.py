@@ -184,7 +184,14 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
 
     _write_pair_table(out / "table.csv", rows, recs, acc, ("", "_std"), 4)
     _write_pair_table(out / "runtime.csv", rows, recs, run, ("_ms_mean", "_fps"), 3)
-    with (out / "results.csv").open("w", newline="") as f:
+    _write_results(out / "results.csv", status)
+    return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "spread": spread,
+            "errors": errors, "internal_errors": internal, "notes": notes}
+
+
+def _write_results(path: Path, status: list) -> None:
+    """results.csv: one row per run (cell, its state) with metrics.json's figures."""
+    with path.open("w", newline="") as f:
         w = csv.writer(f, lineterminator="\n")
         cols = ["tip_error_px.mean", "tip_error_px.median", "tip_error_px.p95",
                 "tip_error_percent_diagonal.mean", "tip_error_percent_diagonal.std",
@@ -197,8 +204,6 @@ def write_tables(out: Path, cells: list[Cell], notes: list[str]) -> dict:
             w.writerow([c.recording, c.row[0], c.row[1], c.options.get("seed", ""), st["state"]]
                        + [_count(_get(r, k)) if k in COUNT_COLUMNS else _fmt(_get(r, *k.split(".")), 4)
                           for k in cols] + [st.get("error", "")])
-    return {"recordings": recs, "rows": rows, "accuracy": acc, "runtime": run, "spread": spread,
-            "errors": errors, "internal_errors": internal, "notes": notes}
 
 
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:

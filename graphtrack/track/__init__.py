@@ -65,6 +65,17 @@ def _jaw_in_joints(rec: Recording) -> str:
             "jaw from a topic of its own, one value per message)")
 
 
+def _grey_markers(frame, ctx: TrackingContext, options: TrackOptions) -> str | None:
+    """The warning line for greyscale frames when markers are to be found (by colour)."""
+    img = frame.image
+    if not (ctx.robot.point_features and options.detection.markers and img is not None):
+        return None
+    grey = img.ndim == 2 or img.shape[2] == 1 or (np.array_equal(img[..., 0], img[..., 1])
+                                                 and np.array_equal(img[..., 1], img[..., 2]))
+    return ("the frames are greyscale: painted markers are found by their colour, so none will be, and the "
+            "shaft alone is tracked (--no-markers says so without this warning)") if grey else None
+
+
 def _observable(rec: Recording, ctx: TrackingContext, options: TrackOptions) -> list[str]:
     """What an estimator that reads images can observe of the robot: InputError when
     nothing (no shaft_features, and no point_features or --no-markers: the output would
@@ -152,6 +163,9 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                 run.skipped.skip(item, quiet)
                 continue
             frame = item
+            if not run.frames and pipe.needs_images and (line := _grey_markers(frame, ctx, options)):
+                notes.append(line)
+                warn(f"warning: {line}", quiet)
             est, det, obs, ms = pipe.step(frame)
             if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
                 run.skipped.skip(FrameError(frame.index, "nonfinite_estimate",
