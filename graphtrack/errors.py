@@ -30,6 +30,8 @@ def read_text(path) -> str:
     """The UTF-8 text of a configuration or CSV file; InputError naming the file when it
     is missing, unreadable, or not UTF-8 (with the byte offset of the first bad byte)."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a folder, not a file")
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     try:

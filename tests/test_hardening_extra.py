@@ -96,6 +96,8 @@ EXIT2 = [
     ("joints_csv_empty", "folder", write("joints.csv", ""), (), r"joints\.csv: header must be"),
     ("joints_csv_header_only", "folder", lambda r: edit_joints(r, lambda rows: rows[:1]), (),
      r"frames: holds 12 images but joints\.csv has 0 rows"),
+    ("labels_csv_a_folder", "folder", lambda r: (r / "labels.csv").unlink() or (r / "labels.csv").mkdir(), (),
+     r"labels\.csv: a folder, not a file"),
     ("frames_numbered_from_1", "folder", renumber_from_1, (),
      r"frames: holds 12 images but joints\.csv has 12 rows \(first image without a row: 000012\.png\).*"
      r"numbered from 1, frames from 0: rename them"),
@@ -127,7 +129,8 @@ EXIT2 = [
     ("seed_negative", "folder", keep, ("--seed", "-1"), r"--seed must be an integer in 0\.\.4294967295"),
     ("lag_nan", "folder", keep, ("--lag", "nan"), r"--lag must be a finite number"),
     ("beta_above_1", "folder", keep, ("--beta", "5"), r"--beta must be in \[0, 1\]"),
-    ("alpha_inf", "folder", keep, ("--alpha", "inf"), r"--alpha must be a positive number"),
+    ("alpha_inf", "folder", keep, ("--alpha", "inf"), r"--alpha must be in \(0, 100\] px \(the method's is 10\)"),
+    ("alpha_huge", "folder", keep, ("--alpha", "1e9"), r"--alpha must be in \(0, 100\] px"),
     ("particles_0", "folder", keep, ("--estimator", "pf", "--particles", "0"), r"--particles must be between 1 and 100000, got 0"),
     ("tip_feature_unknown", "folder", keep, ("--tip-feature", "nope"), r"--tip-feature: .*no point feature 'nope'"),
 ]

@@ -268,6 +268,8 @@ def test_cli_refusals_are_one_line_exit_2(stereo, tmp_path, capsys):
     empty = write_camera_info_bag(tmp_path / "none.bag", [])
     assert main(["calibration", "--out", str(tmp_path / "s"), "--bag", str(empty)]) == 2
     assert "no camera_info messages" in capsys.readouterr().err
+    assert main(["calibration", "--out", str(tmp_path / "s"), "--ros", str(left), "--registration-unit", "mm"]) == 2
+    assert "--registration-unit describes --dvrk-registration's file" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
 
 

@@ -610,3 +610,11 @@ def test_a_baseline_with_the_right_camera_on_the_left_is_warned_about(tmp_path):
         save_calibration(seq / "camera_calibration.yaml", Calibration(cam, cam, np.eye(3), np.array([tx, 0, 1.7e-4])))
         got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "to the left of the left one" in w]
         assert len(got) == warned and (not warned or got[0].startswith(f"{seq / 'camera_calibration.yaml'}: T = [5.0"))
+
+
+def test_video_beside_frames_is_noted_as_unread(tmp_path):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    (seq / "video.mp4").write_bytes(b"x")
+    got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "video.mp4" in w]
+    assert got == [f"{seq / 'video.mp4'}: not read: frames/ holds the images (a recording has one or the other)"]

@@ -119,6 +119,8 @@ def _check_sources(args) -> None:
         raise InputError("--rectified describes the rectified cameras of --ros or --bag: give one")
     if (args.opencv_keys or args.image_size) and not args.opencv:
         raise InputError("--opencv-keys and --image-size describe --opencv's files: give --opencv")
+    if args.registration_unit != "m" and not args.dvrk_registration:
+        raise InputError("--registration-unit describes --dvrk-registration's file: give --dvrk-registration")
 
 
 def _cameras(args):

@@ -8,6 +8,9 @@ from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.pixel_sets import ALPHA, BETA
 from graphtrack.errors import InputError
 
+#: px, the widest pixel-set radius accepted (ten times the method's)
+MAX_ALPHA = 100.0
+
 DETECTOR = "learned"                    #: the shipped CPU line network
 OBSERVATION = "line-intensities"        #: the method's default observation model
 MAX_DETECT_WIDTH = 960                  #: px; detection runs at most this wide by default
@@ -34,8 +37,9 @@ class DetectionOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
         if self.scale is not None and not 0.05 <= self.scale <= 1.0:
             raise InputError("--detect-scale must be in [0.05, 1]")
-        if not 0 < self.alpha < float("inf"):
-            raise InputError(f"--alpha must be a positive number of pixels, got {self.alpha!r}")
+        if not 0 < self.alpha <= MAX_ALPHA:   # wider: the pixel sets take in the image around the shaft
+            raise InputError(f"--alpha must be in (0, {MAX_ALPHA:g}] px (the method's is {ALPHA:g}), "
+                             f"got {self.alpha!r}")
         if not 0 <= self.beta <= 1:   # a heatmap value: outside [0, 1] every or no pixel passes
             raise InputError(f"--beta must be in [0, 1] (a heatmap threshold), got {self.beta!r}")
         if self.weights and self.detector == "canny":

@@ -163,6 +163,9 @@ class FolderSource:
             if self.n_images and not self._files:
                 raise InputError(f"{frames_dir}: no images")
             _check_numbering(frames_dir, self._files, self.n_images)
+            if (self.path / "video.mp4").exists():
+                self.warnings.append(f"{self.path / 'video.mp4'}: not read: frames/ holds the images (a "
+                                     "recording has one or the other)")
             missing = self.n_images - len(self._files)
             if missing:
                 self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")

@@ -307,7 +307,7 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
     calibration = load_calibration(path / "camera_calibration.yaml")
     size = (calibration.left.height, calibration.left.width)
     size_from = f"ImageSize in {path / 'camera_calibration.yaml'}"
-    labels, labels_r = (read_labels(path / name, size, size_from) if (path / name).is_file() else None
+    labels, labels_r = (read_labels(path / name, size, size_from) if (path / name).exists() else None
                         for name in ("labels.csv", "labels_right.csv"))
     source, notes = find_source(path, topics)
     given = [f"--{k}-topic" for k in ("image", "joint", "jaw") if getattr(topics, k) is not None]
