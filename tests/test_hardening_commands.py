@@ -507,7 +507,9 @@ def test_recording_warnings_are_kept_in_metrics_when_quiet(folder_rec, tmp_path,
     code, err = run_cli(["track", rec, "--out", tmp_path / "o", "--estimator", "kinematics", "--quiet"], capsys)
     assert code == 0 and err == ""
     kept = json.loads((tmp_path / "o" / "metrics.json").read_text())["recording_warnings"]
-    assert len(kept) == 1 and "K1's principal point" in kept[0]
+    assert "K1's principal point" in kept[0]
+    # the tip it puts outside the image in every frame is warned about, and kept, too
+    assert len(kept) == 2 and "tool tip projects outside the image in every tracked frame" in kept[1]
     code, out = run_cli(["compare", rec, "--out", tmp_path / "s", "--estimators", "kinematics", "--quiet"], capsys)
     assert code == 0 and f"- {kept[0]}" in (tmp_path / "s" / "table.md").read_text()   # a study's cells run quietly
     lines = [str(i) for i in range(MAX_WARNINGS + 5)]
