@@ -142,22 +142,25 @@ def test_a_right_image_copied_from_the_left_is_left_only(tmp_path):
         rec.right_skip_warning
 
 
-def test_right_images_beyond_the_rows_are_refused(tmp_path):
-    """frames_right/ numbered from 1 (each right image paired with the wrong frame), or holding
-    extra images: refused as frames/ is."""
+def test_right_images_numbered_from_1_are_unused_and_extras_noted(tmp_path):
+    """frames_right/ numbered from 1 (each right image would pair with the wrong frame): left-only
+    with a warning; right images beyond the rows (a right camera that saved one more) are
+    noted and unused, the pairs by name kept."""
     seq = tmp_path / "seq"
     write_folder(seq, make_seq(seq, stereo_calibration(False)))
     right = seq / "frames_right"
     for q in sorted(right.iterdir(), reverse=True):
         q.rename(q.with_name(f"{int(q.stem) + 1:06d}{q.suffix}"))
-    with pytest.raises(InputError, match=r"frames_right: holds 6 images but joints\.csv has 6 rows \(first image "
-                                         r"without a row: 000006\.png\).*numbered from 1, frames from 0"):
-        open_recording(seq, **NO_ROBOT)
+    rec = open_recording(seq, **NO_ROBOT)
+    assert not rec.stereo and all(f.image_right is None for f in rec.frames())
+    assert [w for w in rec.warnings if "frames_right" in w] == [
+        f"{right}: the right images are numbered 1..6 for frames 0..5: each would pair with the wrong frame, "
+        "so they are not used (left-only); rename them from 000000"]
     (right / "000006.png").rename(right / "000000.png")
     (right / "000009.png").write_bytes((right / "000001.png").read_bytes())
-    with pytest.raises(InputError, match=r"frames_right: holds 7 images but joints\.csv has 6 rows \(first image "
-                                         r"without a row: 000009\.png\); every image needs its own row"):
-        open_recording(seq, **NO_ROBOT)
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.stereo and all(f.image_right is not None for f in rec.frames())
+    assert f"{right}: 1 right images beyond joints.csv's 6 rows (first: 000009.png) are not used" in rec.warnings
 
 
 def test_bag_right_matched_by_stamp_not_order(tmp_path):

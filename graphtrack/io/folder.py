@@ -115,15 +115,19 @@ def _parse_joints_csv(text: str, path: Path):
             np.array(jaw, dtype=float))
 
 
+def _one_based(files: dict, n_rows: int) -> bool:
+    """Images numbered 1..n for frames 0..n-1 (k+1 for frame k)."""
+    return bool(files) and 0 not in files and len(files) == n_rows and max(files) == n_rows
+
+
 def _check_numbering(folder: Path, files: dict, n_rows: int) -> None:
     """InputError when ``folder`` holds an image numbered beyond joints.csv's rows (frame k
     is row k: images are never re-paired), saying so when they are numbered from 1."""
     extra = sorted(k for k in files if k >= n_rows)
     if not extra:
         return
-    one_based = 0 not in files and len(files) == n_rows and max(files) == n_rows
     hint = ("; the images are numbered from 1, frames from 0: rename them (000001.png -> 000000.png, "
-            "...) so that image k is joints.csv's row of frame k" if one_based else "")
+            "...) so that image k is joints.csv's row of frame k" if _one_based(files, n_rows) else "")
     raise InputError(f"{folder}: holds {len(files)} images but joints.csv has {n_rows} rows (first image "
                      f"without a row: {files[extra[0]].name}); every image needs its own row, images are "
                      f"never re-paired{hint}")
@@ -155,9 +159,9 @@ class FolderSource:
         right_dir = self.path / "frames_right"
         #: frame -> right image file (frames_right/, same names as frames/); None: mono
         self.right_files = _image_files(right_dir) if right_dir.is_dir() else None
-        if self.right_files:
-            _check_numbering(right_dir, self.right_files, self.n_images)
         self.right_skips = {"missing": 0, "corrupt": 0}
+        if self.right_files:
+            self._check_right_numbering(right_dir)
         if frames_dir.is_dir():
             self._files = _image_files(frames_dir)
             if self.n_images and not self._files:
@@ -174,6 +178,21 @@ class FolderSource:
             self._check_video_length()
         else:
             raise InputError(f"{self.path}: neither frames/ nor video.mp4 holds the images")
+
+    def _check_right_numbering(self, right_dir: Path) -> None:
+        """frames_right/ numbered from 1 would pair each right image with the wrong frame: not
+        used (left-only), with a warning; right images beyond joints.csv's rows are unused,
+        with a note (the right images are optional, and unread with --mono)."""
+        files, n = self.right_files, self.n_images
+        extra = sorted(k for k in files if k >= n)
+        if _one_based(files, n):
+            self.right_files = None
+            self.warnings.append(f"{right_dir}: the right images are numbered 1..{n} for frames 0..{n - 1}: each "
+                                 "would pair with the wrong frame, so they are not used (left-only); rename "
+                                 "them from 000000")
+        elif extra:
+            self.warnings.append(f"{right_dir}: {len(extra)} right images beyond joints.csv's {n} rows (first: "
+                                 f"{files[extra[0]].name}) are not used")
 
     def __len__(self) -> int:
         return int(self.n_images)
