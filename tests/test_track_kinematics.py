@@ -220,3 +220,21 @@ def test_tip_feature_option_and_missing_tool_tip(tmp_path, capsys):
     uv, _ = cv2.projectPoints(p[None], np.asarray(doc["PSM1_rvec"], float),
                               np.asarray(doc["PSM1_tvec"], float) / 1000, K, D)
     assert np.linalg.norm(np.array([float(rows[1][9]), float(rows[1][10])]) - uv.reshape(2)) < 0.05
+
+
+def test_near_image_is_judged_without_the_distortion_fold_back():
+    """A wide-angle lens (k1 = -0.4): a tip at X/Z = 2, 1000 px beside a 1920x1080 image, is
+    near it, though the distortion polynomial (OpenCV's projectPoints, the oracle) folds it
+    thousands of pixels the other way; behind the camera or 3 diagonals off is not near."""
+    import cv2
+
+    from graphtrack.geometry.camera import Camera
+    from graphtrack.track import near_image
+
+    K = np.array([[1000.0, 0, 960], [0, 1000.0, 540], [0, 0, 1]])
+    D = np.array([-0.4, 0.25, 0, 0, -0.1])
+    cam = Camera(K, D, 1080, 1920)
+    pts = np.array([[2.0, 0.0, 1.0], [0.1, 0.0, -1.0], [7.0, 0.0, 1.0], [0.1, 0.1, 1.0]])
+    raw = cv2.projectPoints(pts[:1], np.zeros(3), np.zeros(3), K, D)[0].reshape(2)
+    assert raw[0] < -cam.diagonal                      # folded far to the left
+    assert near_image(cam, pts).tolist() == [True, False, False, True]

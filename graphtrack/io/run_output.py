@@ -107,9 +107,12 @@ def require_tool_in_front(result: dict, handeye: str | Path) -> None:
     So is a run whose tip projected more than an image diagonal outside the image in every
     frame (``frames_tip_near_image`` = 0): a tool in view has its tip nearer than that."""
     n = result.get("frames_tracked", 0)
-    if n > 0 and result.get("frames_tip_in_front") and result.get("frames_tip_near_image") == 0:
+    front = result.get("frames_tip_in_front")
+    if n > 0 and front and result.get("frames_tip_near_image") == 0:
+        where = (f"all {n} tracked frames" if front == n
+                 else f"all {front} tracked frames with it in front of the camera")
         raise InputError(f"{handeye}: at this hand-eye the tool tip projects more than an image diagonal "
-                         f"outside the image in all {n} tracked frames, so nothing in view could be tracked; "
+                         f"outside the image in {where}, so nothing in view could be tracked; "
                          "check that the file maps the arm's base into the camera (X_camera = R(rvec) X_base "
                          "+ tvec, tvec in millimetres), not the camera into the base, and that its key prefix "
                          "names the recorded arm (or K1 and D1 in camera_calibration.yaml, which project it)")

@@ -210,6 +210,19 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     return result
 
 
+def near_image(camera, points: np.ndarray) -> np.ndarray:
+    """Which camera-frame points (N, 3) m lie in front of the camera and project within one
+    image diagonal of the image, judged by the pinhole (K) projection: outside the calibrated
+    field of view the distortion polynomial folds back, putting a point just beyond a
+    wide-angle view thousands of pixels away (or inside the image)."""
+    p = np.asarray(points, float).reshape(-1, 3)
+    ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
+    uv = np.full((len(p), 2), np.nan)
+    uv[ok] = camera.project_undistorted(p[ok])
+    d, W, H = camera.diagonal, camera.width, camera.height
+    return ok & (uv[:, 0] >= -d) & (uv[:, 0] < W + d) & (uv[:, 1] >= -d) & (uv[:, 1] < H + d)
+
+
 #: recording warnings kept in metrics.json (the rest counted)
 MAX_WARNINGS = 20
 
@@ -236,9 +249,8 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
     if rec.robot.tool_tip is not None:   # where the estimates put the tip (require_tool_in_front)
         front = np.all(np.isfinite(tips), axis=1)
         u, v = tips[front].T
-        W, H, d = ctx.camera.width, ctx.camera.height, ctx.camera.diagonal
-        inside = (u >= 0) & (u < W) & (v >= 0) & (v < H)
-        near = (u >= -d) & (u < W + d) & (v >= -d) & (v < H + d)   # within one diagonal of the image
+        inside = (u >= 0) & (u < ctx.camera.width) & (v >= 0) & (v < ctx.camera.height)
+        near = near_image(ctx.camera, np.array([tip_point(ctx, r[2], r[4]) for r in run.rows]))
         result.update(frames_tip_in_front=int(front.sum()), frames_tip_in_image=int(inside.sum()),
                       frames_tip_near_image=int(near.sum()))
     if rec.labels is not None:
