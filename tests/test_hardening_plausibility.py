@@ -291,3 +291,26 @@ def test_greyscale_frames_warn_that_markers_cannot_be_found(base, tmp_path, caps
     assert any("greyscale" in w for w in doc["recording_warnings"])
     assert main(["track", str(rec), "--out", str(tmp_path / "nm"), "--max-frames", "3", "--no-markers"]) == 0
     assert "greyscale" not in capsys.readouterr().err
+
+
+def test_a_black_first_frame_is_not_taken_for_greyscale(base, tmp_path, capsys):  # noqa: F811
+    """The light off in frame 0 (all black): the colour frames after it decide; no warning."""
+    from graphtrack.cli import main
+
+    rec = copy(base, "folder", tmp_path)
+    first = rec / "frames" / "000000.png"
+    cv2.imwrite(str(first), np.zeros_like(cv2.imread(str(first))))
+    assert main(["track", str(rec), "--out", str(tmp_path / "out"), "--max-frames", "3"]) == 0
+    assert "greyscale" not in capsys.readouterr().err
+
+
+def test_greyscale_frames_of_a_robot_with_markers_only_are_refused(base, tmp_path, capsys):  # noqa: F811
+    """No shaft, and markers that greyscale frames cannot show: nothing to track (the run
+    returned the prior with exit 0)."""
+    rec = copy(base, "folder", tmp_path)
+    edit_json(rec / "robot.json", lambda d: d.pop("shaft_features"))
+    for p in (rec / "frames").iterdir():
+        cv2.imwrite(str(p), cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2GRAY))
+    code, err = run_cli(["track", rec, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and re.search(r"robot\.json: no shaft_features, and the frames are greyscale \(frame 0\) "
+                                   r"while painted markers are found by their colour", error_line(err)), err

@@ -65,15 +65,28 @@ def _jaw_in_joints(rec: Recording) -> str:
             "jaw from a topic of its own, one value per message)")
 
 
-def _grey_markers(frame, ctx: TrackingContext, options: TrackOptions) -> str | None:
-    """The warning line for greyscale frames when markers are to be found (by colour)."""
+def _grey_markers(frame, ctx: TrackingContext, options: TrackOptions, robot_json: Path) -> str | None:
+    """For greyscale frames when markers are to be found (by colour): the warning line, or
+    InputError when the robot has no shaft either (nothing could be tracked). "" when the
+    frames are in colour or markers are not used, None while undecided (a flat frame: the
+    light off, a fade-in)."""
     img = frame.image
     if not (ctx.robot.point_features and options.detection.markers and img is not None):
+        return ""
+    if int(img.max()) - int(img.min()) < FLAT_LEVELS:
         return None
-    grey = img.ndim == 2 or img.shape[2] == 1 or (np.array_equal(img[..., 0], img[..., 1])
-                                                 and np.array_equal(img[..., 1], img[..., 2]))
+    if not (img.ndim == 2 or img.shape[2] == 1 or (np.array_equal(img[..., 0], img[..., 1])
+                                                  and np.array_equal(img[..., 1], img[..., 2]))):
+        return ""
+    if not ctx.robot.shaft_features:
+        raise InputError(f"{robot_json}: no shaft_features, and the frames are greyscale (frame {frame.index}) "
+                         "while painted markers are found by their colour: nothing in the images can be tracked")
     return ("the frames are greyscale: painted markers are found by their colour, so none will be, and the "
-            "shaft alone is tracked (--no-markers says so without this warning)") if grey else None
+            "shaft alone is tracked (--no-markers says so without this warning)")
+
+
+#: grey levels a frame must span to be judged colour or greyscale (a darker one is the light off)
+FLAT_LEVELS = 16
 
 
 def _observable(rec: Recording, ctx: TrackingContext, options: TrackOptions) -> list[str]:
@@ -147,6 +160,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     notes = _observable(rec, ctx, options) if pipe.needs_images else []
     for line in notes:
         warn(f"warning: {line}", quiet)
+    grey = None   # the greyscale-frames test's verdict (_grey_markers), None until a frame decides
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
     overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels,
                             labels_right=rec.labels_right) if video else None
@@ -163,9 +177,9 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                 run.skipped.skip(item, quiet)
                 continue
             frame = item
-            if not run.frames and pipe.needs_images and (line := _grey_markers(frame, ctx, options)):
-                notes.append(line)
-                warn(f"warning: {line}", quiet)
+            if grey is None and pipe.needs_images and (grey := _grey_markers(frame, ctx, options, rec.path / "robot.json")):
+                notes.append(grey)
+                warn(f"warning: {grey}", quiet)
             est, det, obs, ms = pipe.step(frame)
             if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
                 run.skipped.skip(FrameError(frame.index, "nonfinite_estimate",
