@@ -97,9 +97,9 @@ def test_calibration_as_opencv_filestorage_writes_it(tmp_path, header):
     ("ImageSize: [540, 960]\nK1: {data: [800,0,480,0,800,270,0,0,1]}\nD1: {data: [.nan,0,0,0,0]}\n", "D1"),
     # K divided by the image size (fx = 800 / 960)
     ("ImageSize: [540, 960]\nK1: {data: [0.833,0,0.5,0,1.48,0.5,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n",
-     "K1': focal lengths 0.833, 1.48 px would see more than 170 deg"),
+     "K1': focal lengths 0.833, 1.48 px would see more than 168 deg"),
     ("ImageSize: [540, 960]\nK1: {data: [40,0,480,0,40,270,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n",
-     "K1': focal lengths 40, 40 px would see more than 170 deg"),
+     "K1': focal lengths 40, 40 px would see more than 168 deg"),
     ("ImageSize: [540, 960]\nK1: {data: [800,200,480,0,800,270,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n",
      "K1': skew K[0,1] = 200 px is not supported"),
     ("ImageSize: [540, 960\n", "YAML"),
@@ -190,11 +190,20 @@ def test_size_mismatch_hint():
     assert size_mismatch_hint((480, 640), (540, 960)) == ""       # 4:3 against 16:9: no scale fits
 
 
-def test_a_skew_under_half_a_pixel_at_the_edge_is_dropped(tmp_path):
-    """|K[0,1]| <= fy / h moves no pixel of the image by more than half a pixel: read, as 0."""
+def test_a_skew_is_dropped_with_a_note_by_what_it_moves(tmp_path):
+    """Dropping a skew s moves the image's top and bottom rows by s (h / 2) / fy px (the
+    pinhole u = fx x + s y + cx at y = +-(h / 2) / fy): up to half a pixel silently, up to
+    3 px with a note, beyond refused. 1080p, fy = 1048: s = 1.5 px moves 0.77 px."""
     p = tmp_path / "camera_calibration.yaml"
-    p.write_text("ImageSize: [540, 960]\nK1: {data: [800,1.2,480,0,800,270,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n")
-    K = load_calibration(p).left.K
-    assert K[0, 1] == 0.0 and K[0, 0] == 800
-    # the bound: the skew's shift s * y_n at the image's top or bottom row (|y_n| = (h/2) / fy)
-    assert 1.2 * (270 / 800) < 0.5 < (800 / 540 + 0.1) * (270 / 800)
+    for s, moved in ((0.9, None), (1.5, 0.77)):
+        p.write_text(f"ImageSize: [1080, 1920]\nK1: {{data: [1050,{s},960,0,1048,540,0,0,1]}}\n"
+                     "D1: {data: [0,0,0,0,0]}\n")
+        c = load_calibration(p)
+        assert c.left.K[0, 1] == 0.0 and c.left.K[0, 0] == 1050
+        assert c.notes == ([] if moved is None else [
+            f"{p}: K1's skew K[0,1] = {s:g} px is dropped (graphtrack's camera has none): the image's top and "
+            f"bottom rows move by up to {moved:.2g} px; calibrate without it"])
+    p.write_text("ImageSize: [1080, 1920]\nK1: {data: [1050,6,960,0,1048,540,0,0,1]}\nD1: {data: [0,0,0,0,0]}\n")
+    with pytest.raises(InputError, match=r"skew K\[0,1\] = 6 px is not supported: .* move the image's top and "
+                                         r"bottom rows by 3\.09 px"):
+        load_calibration(p)

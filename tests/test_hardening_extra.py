@@ -107,7 +107,7 @@ EXIT2 = [
     ("calibration_not_a_mapping", "folder", write("camera_calibration.yaml", "- 1\n"), (),
      r"camera_calibration\.yaml: expected a mapping"),
     ("focal_below_1px", "folder", lambda r: edit_yaml(r / "camera_calibration.yaml", set_focal(1e-9)), (),
-     r"camera_calibration\.yaml: key 'K1': focal lengths 1e-09, 1e-09 px would see more than 170 deg .*"
+     r"camera_calibration\.yaml: key 'K1': focal lengths 1e-09, 1e-09 px would see more than 168 deg .*"
      r"a K divided by the image size"),
     ("focal_negative", "folder", lambda r: edit_yaml(r / "camera_calibration.yaml", set_focal(-800)), (),
      r"camera_calibration\.yaml: key 'K1': focal lengths must be in \[1, 1e6\] px, got -800, -800"),

@@ -192,6 +192,8 @@ class Calibration:
     right: Camera | None = None
     R: np.ndarray | None = None
     T: np.ndarray | None = None
+    #: lines for the user on what reading the file changed (a skew dropped)
+    notes: list[str] = field(default_factory=list)
 
     @property
     def stereo(self) -> bool:
@@ -260,16 +262,21 @@ def _image_size(doc: dict, path: Path) -> tuple[int, int]:
 MIN_FOCAL_FRACTION = 0.05
 
 
-def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
+#: px, the most a dropped skew may move the image's top or bottom rows (more is refused)
+MAX_SKEW_SHIFT_PX = 3.0
+
+
+def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path, notes: list | None = None) -> np.ndarray:
     """K: focal lengths in [1, 1e6] px and at least MIN_FOCAL_FRACTION of the image's
     longer side, principal point within one image size of the image, last row (0, 0, 1),
-    K[1, 0] = 0, skew K[0, 1] at most fy / h px (then set to 0: the camera has none)."""
+    K[1, 0] = 0, and a skew K[0, 1] that, dropped (the camera has none), moves the image's
+    top and bottom rows by at most MAX_SKEW_SHIFT_PX (over half a pixel: a line in ``notes``)."""
     K = _matrix(doc, key, 9, path).reshape(3, 3)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     if not (0 < fx <= 1e6 and 0 < fy <= 1e6):
         raise InputError(f"{path}: key '{key}': focal lengths must be in [1, 1e6] px, got {fx:g}, {fy:g}")
     if min(fx, fy) < max(1.0, MIN_FOCAL_FRACTION * max(w, h)):
-        raise InputError(f"{path}: key '{key}': focal lengths {fx:g}, {fy:g} px would see more than 170 deg "
+        raise InputError(f"{path}: key '{key}': focal lengths {fx:g}, {fy:g} px would see more than 168 deg "
                          f"across the {w}x{h} image; K is in pixels (a K divided by the image size, as some "
                          "tools store it, must be multiplied back)")
     if not (-w <= cx <= 2 * w and -h <= cy <= 2 * h):
@@ -278,11 +285,15 @@ def _intrinsics(doc: dict, key: str, h: int, w: int, path: Path) -> np.ndarray:
     if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
         raise InputError(f"{path}: key '{key}' is not an intrinsic matrix (last row must be 0 0 1, "
                          "K[1,0] = 0)")
-    if abs(K[0, 1]) > fy / h:   # moves a pixel at the image's top or bottom edge by more than 0.5 px
+    shift = abs(K[0, 1]) * (h / 2) / fy   # px: dropping the skew moves the image's top and bottom rows by this
+    if shift > MAX_SKEW_SHIFT_PX:
         raise InputError(f"{path}: key '{key}': skew K[0,1] = {K[0, 1]:g} px is not supported: graphtrack's "
-                         "camera is OpenCV's, without skew; calibrate without it (OpenCV never estimates "
-                         f"it; MATLAB: EstimateSkew false). A skew up to fy / height = {fy / h:.3g} (half a "
-                         "pixel at the image's edge) is ignored")
+                         "camera is OpenCV's, without skew, and dropping it would move the image's top and "
+                         f"bottom rows by {shift:.3g} px; calibrate without it (OpenCV never estimates it; "
+                         "MATLAB: EstimateSkew false)")
+    if shift > 0.5 and notes is not None:
+        notes.append(f"{path}: {key}'s skew K[0,1] = {K[0, 1]:g} px is dropped (graphtrack's camera has none): "
+                     f"the image's top and bottom rows move by up to {shift:.2g} px; calibrate without it")
     K = K.copy()
     K[0, 1] = 0.0
     return K
@@ -300,9 +311,10 @@ def load_calibration(path: str | Path) -> Calibration:
     if not isinstance(doc, dict):
         raise InputError(f"{path}: expected a mapping of keys")
     h, w = _image_size(doc, path)
+    notes: list[str] = []
 
     def cam(kk: str, dk: str) -> Camera:
-        K = _intrinsics(doc, kk, h, w, path)
+        K = _intrinsics(doc, kk, h, w, path, notes)
         D = _matrix(doc, dk, 5, path)
         if np.any(np.abs(D) > 1e4):
             raise InputError(f"{path}: key '{dk}' holds a coefficient beyond 1e4")
@@ -325,8 +337,8 @@ def load_calibration(path: str | Path) -> Calibration:
             raise InputError(f"{path}: key 'T' is {1e3 * np.linalg.norm(T):.3g} mm long; a stereo baseline "
                              f"is {MIN_BASELINE_MM:g} to 1000 mm (the dVRK endoscope's about 5 mm), in millimetres: "
                              "values in metres must be multiplied by 1000")
-        return Calibration(left, right, R, T)
-    return Calibration(left)
+        return Calibration(left, right, R, T, notes)
+    return Calibration(left, notes=notes)
 
 
 def save_calibration(path: str | Path, calib: Calibration) -> None:

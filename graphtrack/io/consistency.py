@@ -14,7 +14,7 @@ def consistency_notes(rec) -> list[str]:
     """Lines for the user on parts of a recording that will not be used: labels of frames
     the recording does not have (labels of another recording?), and right images without
     the right camera's calibration (tracked left-only)."""
-    notes = []
+    notes = list(rec.calibration.notes)
     for name, labels in (("labels.csv", rec.labels), ("labels_right.csv", rec.labels_right)):
         beyond = sorted(k for k in (labels or {}) if k >= len(rec))
         if beyond:
