@@ -49,6 +49,12 @@ def test_handeye_named_arm_must_exist_and_several_arms_need_a_choice(tmp_path):
     with pytest.raises(InputError, match=r"missing key 'PSM1_tvec'.* keys for PSM2 only.*"
                                          r"rename PSM2_tvec and PSM2_rvec to PSM1_tvec and PSM1_rvec"):
         load_handeye(p, arm="PSM1")
+    p.write_text("ECM_tvec: [1, 2, 3]\nECM_rvec: [0, 0, 0]\n")   # never told to rename another device's
+    with pytest.raises(InputError, match=r"missing key 'PSM1_tvec'.* keys for ECM only; .* \(an arm's: PSM1, "
+                                         r"PSM2, PSM3; an ECM's or another device's registration is another"):
+        load_handeye(p, arm="PSM1")
+    p.write_text("psm2_tvec: [1, 2, 3]\npsm2_rvec: [0, 0, 0]\n")     # lower case: read as it is
+    np.testing.assert_allclose(load_handeye(p)[:3, 3], [0.001, 0.002, 0.003])
     p.write_text("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, 0, 0]\nPSM3_tvec: [4, 5, 6]\nPSM3_rvec: [0, 0, 0]\n")
     with pytest.raises(InputError, match=r"several arms \(PSM1, PSM3\).*--arm"):
         load_handeye(p)

@@ -18,7 +18,7 @@ import yaml
 
 from graphtrack.errors import InputError, number_list, read_yaml
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
-from graphtrack.io.topics import TopicSelection, handeye_arm
+from graphtrack.io.topics import ARMS, TopicSelection, handeye_arm
 
 
 def _read_yaml(path: Path) -> dict:
@@ -63,7 +63,9 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
         found = sorted(k[: -len("_tvec")] for k in doc if isinstance(k, str) and k.endswith("_tvec"))
         others = f"keys for {', '.join(found)} only" if found else "no *_tvec key"
         rename = (f"; if the calibration is of {prefix}, rename {found[0]}_tvec and {found[0]}_rvec to "
-                  f"{prefix}_tvec and {prefix}_rvec" if len(found) == 1 else "")
+                  f"{prefix}_tvec and {prefix}_rvec" if len(found) == 1 and found[0].upper() in ARMS else
+                  f" (an arm's: {', '.join(ARMS)}; an ECM's or another device's registration is another "
+                  "transform)")
         raise InputError(f"{path}: missing key '{prefix}_tvec': the arm tracked is {prefix} (--arm, or the "
                          f"arm whose joints the recording carries) and the file has {others}; the keys' "
                          f"prefix names the arm the calibration is of{rename}")

@@ -154,7 +154,7 @@ def handeye_arm(keys, sel: TopicSelection, where: str) -> str:
     found = sorted(k[: -len("_tvec")] for k in keys if isinstance(k, str) and k.endswith("_tvec"))
     if len(found) > 1:
         raise InputError(f"{where}: hand-eye keys for several arms ({', '.join(found)}); choose one with --arm")
-    if found and found[0] not in ARMS:
+    if found and found[0].upper() not in ARMS:
         raise InputError(f"{where}: keys '{found[0]}_tvec' / '{found[0]}_rvec' name no arm graphtrack tracks "
                          f"({', '.join(ARMS)}): the file holds the camera-from-base transform of the tracked PSM, "
                          f"its keys prefixed with that arm (e.g. PSM1_tvec); an ECM's or another device's "
