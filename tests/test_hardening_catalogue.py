@@ -230,6 +230,8 @@ EXIT2 = [
     ("empty_stamps", "folder", lambda r: edit_joints(r, set_column(1, "")), (), r"joints\.csv: line 2: stamp"),
     ("decimal_comma", "folder", lambda r: edit_joints(r, set_column(4, '"0,5"')), (),
      r"joints\.csv: line 2: q3 '0,5' is not a number \(a decimal comma\? write 0\.5, not 0,5\)"),
+    ("decimal_comma_unquoted", "folder", lambda r: edit_joints(r, set_column(4, "0,5")), (),
+     r"joints\.csv: line 2 has 10 fields, expected 9 \(a decimal comma\? write 0\.5, not 0,5\)"),
     ("underscore_number", "folder", lambda r: edit_joints(r, set_column(3, "1_0.5")), (),
      r"joints\.csv: line 2: q2 '1_0\.5' is not a number"),
     ("fullwidth_digit", "folder", lambda r: edit_joints(r, set_column(2, "\uff10.1")), (),

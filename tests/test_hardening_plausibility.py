@@ -273,6 +273,8 @@ def test_out_that_is_the_recording_is_refused(command, base, tmp_path, capsys): 
     assert code == 2 and re.search(r"--out \S+ is the recording folder itself; write the run's files into a "
                                    r"folder of their own, e\.g\. --out \S+/run", error_line(err)), err
     assert sorted(p.name for p in rec.iterdir()) == before
+    code, err = run_cli([command, rec, "--out", rec / "frames" / "out", "--quiet"], capsys)
+    assert code == 2 and "is inside the recording's frames/" in error_line(err), err
 
 
 def test_greyscale_frames_warn_that_markers_cannot_be_found(base, tmp_path, capsys):  # noqa: F811
@@ -314,3 +316,13 @@ def test_greyscale_frames_of_a_robot_with_markers_only_are_refused(base, tmp_pat
     code, err = run_cli(["track", rec, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 2 and re.search(r"robot\.json: no shaft_features, and the frames are greyscale \(frame 0\) "
                                    r"while painted markers are found by their colour", error_line(err)), err
+
+
+def test_detect_on_a_recording_without_frames(base, tmp_path, capsys):  # noqa: F811
+    rec = copy(base, "folder", tmp_path)
+    (rec / "joints.csv").write_text((rec / "joints.csv").read_text().splitlines()[0] + "\n")
+    for p in (rec / "frames").iterdir():
+        p.unlink()
+    code, err = run_cli(["detect", rec, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2 and re.search(r"rec: the recording has no frames; .*detections\.csv holds only its header",
+                                   error_line(err)), err

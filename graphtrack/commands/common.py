@@ -33,13 +33,23 @@ def output_path(value: str) -> str:
 
 
 def outside_recording(out, sequence) -> None:
-    """InputError when ``--out`` is the recording folder itself: a run's files would land
-    beside the recording's own (a folder inside it, e.g. SEQ/run, is fine)."""
+    """InputError when ``--out`` is the recording folder itself, or inside one of its own
+    folders (frames/, frames_right/, a ROS 2 bag): a run's files would land among the
+    recording's (and make compare take it as changed). A folder of its own inside the
+    recording (SEQ/run) is fine."""
+    import os
     from pathlib import Path
 
-    if Path(out).resolve() == Path(sequence).resolve():
-        raise InputError(f"--out {out} is the recording folder itself; write the run's files into a folder of "
-                         f"their own, e.g. --out {Path(out) / 'run'}")
+    from graphtrack.io.recording import part_of_recording
+
+    seq, target = Path(sequence).resolve(), Path(out).resolve()
+    same = target == seq or (target.exists() and seq.exists() and os.path.samefile(target, seq))
+    inside = next((seq / q.name for q in [target, *target.parents]
+                   if q.parent == seq and part_of_recording(seq / q.name)), None)
+    if same or inside is not None:
+        where = "the recording folder itself" if same else f"inside the recording's {inside.name}/"
+        raise InputError(f"--out {out} is {where}; write the run's files into a folder of their own, "
+                         f"e.g. --out {Path(sequence) / 'run'}")
 
 
 def add_source_arguments(p) -> None:

@@ -169,6 +169,9 @@ def run(args) -> int:
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,
                            topics=source_from_args(args), stereo=not args.mono, overwrite=args.overwrite)
     counts = ", ".join(f"{k}: {v}" for k, v in sorted(res["skipped_reasons"].items()))
+    if res["frames"] == 0:
+        raise InputError(f"{args.sequence}: the recording has no frames; {args.out}/detections.csv holds only "
+                         "its header")
     if res["frames"] == res["frames_skipped"]:   # never exit 0 with nothing detected
         raise InputError(f"{args.sequence}: no frame could be detected on: {res['frames_skipped']} of "
                          f"{res['frames']} frames skipped ({counts}); first: {res['first_skip']}; "

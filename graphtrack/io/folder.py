@@ -96,7 +96,8 @@ def _parse_joints_csv(text: str, path: Path):
         if not row or all(not c.strip() for c in row):
             continue
         if len(row) != len(header):
-            raise InputError(f"{path}: line {line} has {len(row)} fields, expected {len(header)}")
+            comma = " (a decimal comma? write 0.5, not 0,5)" if len(row) > len(header) else ""
+            raise InputError(f"{path}: line {line} has {len(row)} fields, expected {len(header)}{comma}")
         frame = _csv_int(row[0], path, line)
         vals = [_csv_number(v, name, path, line) for v, name in zip(row[1:], header[1:])]
         if frame != len(stamps):
