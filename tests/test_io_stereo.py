@@ -133,6 +133,8 @@ def test_a_right_image_copied_from_the_left_is_left_only(tmp_path):
     frames = make_seq(seq, stereo_calibration(False))
     for k in (0, 2, 3):
         frames[k].image_right = frames[k].image.copy()
+    frames[5].image = np.zeros_like(frames[5].image)           # the light off: both black, not a copy
+    frames[5].image_right = frames[5].image.copy()
     write_folder(seq, frames)
     rec = open_recording(seq, **NO_ROBOT)
     out = list(rec.frames())
