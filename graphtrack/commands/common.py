@@ -32,26 +32,6 @@ def output_path(value: str) -> str:
     return value
 
 
-def outside_recording(out, sequence) -> None:
-    """InputError when ``--out`` is the recording folder itself, or inside one of its own
-    folders (frames/, frames_right/, a ROS 2 bag): a run's files would land among the
-    recording's (and make compare take it as changed). A folder of its own inside the
-    recording (SEQ/run) is fine."""
-    import os
-    from pathlib import Path
-
-    from graphtrack.io.recording import part_of_recording
-
-    seq, target = Path(sequence).resolve(), Path(out).resolve()
-    same = target == seq or (target.exists() and seq.exists() and os.path.samefile(target, seq))
-    inside = next((seq / q.name for q in [target, *target.parents]
-                   if q.parent == seq and part_of_recording(seq / q.name)), None)
-    if same or inside is not None:
-        where = "the recording folder itself" if same else f"inside the recording's {inside.name}/"
-        raise InputError(f"--out {out} is {where}; write the run's files into a folder of their own, "
-                         f"e.g. --out {Path(sequence) / 'run'}")
-
-
 def add_source_arguments(p) -> None:
     """--arm and the topic overrides (bag recordings; the folder form reads only --arm)."""
     g = p.add_argument_group("recording")

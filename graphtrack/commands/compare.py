@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import sys
 
-from graphtrack.commands.common import add_source_arguments, output_path, outside_recording, source_from_args
+from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
+from graphtrack.io.run_output import outside_recording
 from graphtrack.commands.track import (FORMATTER, add_detection_arguments, add_estimator_arguments,
                                        estimator_options_from_args)
 from graphtrack.detect.base import OBSERVATION_MODELS

@@ -26,7 +26,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from graphtrack.commands.common import add_source_arguments, output_path, outside_recording, source_from_args
+from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
 from graphtrack.commands.track import FORMATTER, add_detection_arguments
 from graphtrack.detect import detect_raw, make_detector
 from graphtrack.detect.draw import draw_detection
@@ -36,7 +36,7 @@ from graphtrack.detect.pixel_sets import endpoints_set, line_set
 from graphtrack.errors import FrameError, InputError
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.outdir import writable_dir
-from graphtrack.io.run_output import prepare_run_dir
+from graphtrack.io.run_output import outside_recording, prepare_run_dir
 from graphtrack.io.recording import open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.video import StampedVideoWriter

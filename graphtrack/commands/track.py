@@ -9,17 +9,15 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 from graphtrack.commands.common import (HelpFormatter, add_source_arguments, add_threads_argument, output_path,
-                                        outside_recording, source_from_args)
+                                        source_from_args)
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.estimate import ESTIMATORS
 from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
 from graphtrack.errors import InputError
-from graphtrack.io.run_output import prepare_run_dir, require_tool_in_front, require_tracked
 from graphtrack.track import TrackOptions, track
 from graphtrack.track.runlog import warn
 
@@ -140,13 +138,9 @@ def run(args) -> int:
     options = options_from_args(args)
     for line in unused_options(args):
         warn(line, args.quiet)
-    outside_recording(args.out, args.sequence)
-    prepare_run_dir(args.out, overwrite=args.overwrite)
-    result = track(args.sequence, args.out, options, video=args.video,
+    result = track(args.sequence, args.out, options, video=args.video,   # InputError: exit status 2
                    progress=not args.quiet, max_frames=args.max_frames, quiet=args.quiet,
-                   topics=source_from_args(args))
-    require_tracked(result, args.out)   # no tracked frame: exit status 2, never 0
-    require_tool_in_front(result, Path(args.sequence) / "handeye.yaml")
+                   topics=source_from_args(args), overwrite=args.overwrite)
     if not args.quiet:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps",
                 "estimator_report")

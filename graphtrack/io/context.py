@@ -26,6 +26,16 @@ class TrackingContext:
     right: Camera | None = None
     right_T_left: np.ndarray | None = None
 
+    @classmethod
+    def of(cls, rec, stereo: bool = True) -> TrackingContext:
+        """The context of an open recording (:func:`graphtrack.io.recording.open_recording`):
+        stereo when the recording is (right images and K2, D2, R, T) and ``stereo``, else
+        the left camera alone."""
+        cal = rec.calibration
+        if stereo and rec.stereo:
+            return cls(rec.robot, cal.left, rec.handeye, cal.right, cal.right_T_left)
+        return cls(rec.robot, cal.left, rec.handeye)
+
     @property
     def stereo(self) -> bool:
         """Whether estimators get right-image observations (a right camera and its extrinsics)."""

@@ -48,12 +48,13 @@ from typing import Callable, Iterator
 import numpy as np
 
 from graphtrack.errors import FrameError, InputError, read_text
-from graphtrack.geometry.camera import Calibration, load_calibration, size_mismatch_hint
+from graphtrack.geometry.camera import Calibration, load_calibration
 from graphtrack.io.bag import BagSource
 from graphtrack.io.consistency import consistency_notes
 from graphtrack.io.folder import FolderSource
+from graphtrack.io.frame_checks import frame_problem, right_problem
 from graphtrack.io.handeye import load_handeye
-from graphtrack.io.joint_units import check_table, joint_bounds, out_of_range
+from graphtrack.io.joint_units import check_table, joint_bounds
 from graphtrack.io.labels import read_labels
 from graphtrack.io.topics import TopicSelection
 from graphtrack.robot.description import load_robot_json
@@ -187,55 +188,18 @@ class Recording:
             if isinstance(item, FrameError):
                 yield item
                 continue
-            f = item
-            joints = np.asarray(f.joints, dtype=float)
-            if f.image.ndim < 2 or f.image.shape[:2] != (h, w):
-                yield FrameError(f.index, "image_size", f"image is {f.image.shape[1]}x{f.image.shape[0]} px, "
-                                 f"camera_calibration.yaml ImageSize says {w}x{h}"
-                                 f"{size_mismatch_hint(f.image.shape[:2], (h, w))}")
-            elif n_exp is not None and joints.size != n_exp:
-                yield FrameError(f.index, "joint_count",
-                                 f"joint reading has {joints.size} values, robot.json has {n_exp} DH joints")
-            elif not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(f.jaw)):
-                yield FrameError(f.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {f.jaw}")
-            elif (why := out_of_range(joints, f.jaw, bounds, has_jaw)) is not None:
-                yield FrameError(f.index, "joint_range", f"joint reading {why}")
-            elif (why := flat_image(f.image)) is not None:
-                yield FrameError(f.index, "flat_image", why)
-            else:
-                if f.image_right is not None and f.image_right.shape[:2] != (h, w):
-                    f.image_right = None
+            problem = frame_problem(item, n_exp, (h, w), bounds, has_jaw)
+            if problem is not None:
+                yield problem
+                continue
+            why = right_problem(item, (h, w))
+            if why is not None:
+                item.image_right = None
+                if why == "image_size":
                     self.right_size_skips += 1
-                elif f.image_right is not None and same_image(f.image, f.image_right):
-                    f.image_right = None
+                else:
                     self.right_same_skips += 1
-                yield f
-
-
-def same_image(a: np.ndarray, b: np.ndarray) -> bool:
-    """True when two images that are not one flat colour are identical: a copy (a sparse
-    grid first: different images differ there, so a stereo pair costs microseconds). Two
-    flat frames (the light off) are alike without being copies."""
-    if a.shape != b.shape or not np.array_equal(a[::16, ::16], b[::16, ::16]):
-        return False
-    return bool(np.array_equal(a, b)) and int(a.max()) != int(a.min())
-
-
-def flat_image(image: np.ndarray) -> str | None:
-    """Why an image is damaged, or None: its bottom quarter is one flat colour over whole
-    rows while the rest is not (a JPEG cut off or zeroed mid-stream decodes with a flat
-    grey tail; a JPEG zeroed whole does not decode at all). A sparse grid is tested first, so an
-    ordinary frame costs microseconds."""
-    h = image.shape[0] if image.ndim else 0
-    tail = image[h - max(h // 4, 1):] if h else image
-    sub = tail[::4, ::16]
-    if sub.size and sub.min() != sub.max():
-        return None
-    if tail.size and tail.min() != tail.max():
-        return None
-    if image.size == 0 or image.min() == image.max():
-        return None   # one flat colour all over: no damage signature (image-free estimators track it)
-    return f"the bottom {len(tail)} rows are one flat colour (damaged or cut-off image data)"
+            yield item
 
 
 def _dh_count(robot_json: Path) -> int | None:

@@ -45,6 +45,23 @@ def prepare_run_dir(out: str | Path, overwrite: bool = False, files=None) -> Pat
     return out
 
 
+def outside_recording(out, sequence) -> None:
+    """InputError when ``--out`` is the recording folder itself, or inside one of its own
+    folders (frames/, frames_right/, a ROS 2 bag): a run's files would land among the
+    recording's (and make compare take it as changed). A folder of its own inside the
+    recording (SEQ/run) is fine."""
+    from graphtrack.io.recording import part_of_recording
+
+    seq, target = Path(sequence).resolve(), Path(out).resolve()
+    same = target == seq or (target.exists() and seq.exists() and os.path.samefile(target, seq))
+    inside = next((seq / q.name for q in [target, *target.parents]
+                   if q.parent == seq and part_of_recording(seq / q.name)), None)
+    if same or inside is not None:
+        where = "the recording folder itself" if same else f"inside the recording's {inside.name}/"
+        raise InputError(f"--out {out} is {where}; write the run's files into a folder of their own, "
+                         f"e.g. --out {Path(sequence) / 'run'}")
+
+
 def strict(obj):
     """``obj`` with every non-finite float replaced by None (recursively through dicts,
     lists and tuples; numpy scalars become Python numbers)."""

@@ -2,9 +2,11 @@
 
 ``track`` streams a recording frame by frame through one estimator and writes
 trajectory.csv / trajectory.tum row by row (flushed, so an interruption loses
-nothing already computed), then metrics.json when labels.csv exists. A bad
-frame (corrupt image, NaN joints, ...) is skipped, warned about and counted in
-metrics.json; bad recordings raise InputError before anything is written.
+nothing already computed), then metrics.json. A bad frame (corrupt image, NaN
+joints, ...) is skipped, warned about and counted in metrics.json; bad options,
+output folders and recordings raise InputError before anything is written, and a
+run that tracked nothing raises it after metrics.json (what the command line
+reports with exit status 2).
 
 The per-frame pipeline is :mod:`graphtrack.track.pipeline` (re-exported here:
 TrackOptions, Pipeline, tip_pixel, ...); what a run collects as it goes,
@@ -28,13 +30,14 @@ from graphtrack.eval.overlay import OverlayWriter
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
-from graphtrack.io.run_output import write_json
+from graphtrack.io.run_output import (outside_recording, prepare_run_dir, require_tool_in_front, require_tracked,
+                                     write_json)
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.trajectory import TrajectoryWriter
 from graphtrack.track.pipeline import MAX_GATE_PX, Pipeline, TrackOptions, tip_pixel, tip_point  # noqa: F401
-from graphtrack.track.runlog import RunLog, read_frames, untrackable, warn
+from graphtrack.track.runlog import RunLog, read_frames, warn
 
 
 def _evaluated_tip(rec: Recording, tip_feature: str | None):
@@ -119,16 +122,13 @@ def _open(path: str | Path, options: TrackOptions, quiet: bool,
     for w in rec.warnings:
         warn(f"warning: {w}", quiet)
     rec.robot = _evaluated_tip(rec, options.tip_feature)
-    cal = rec.calibration
-    if options.stereo and rec.stereo:
-        return rec, TrackingContext(rec.robot, cal.left, rec.handeye, cal.right, cal.right_T_left)
-    return rec, TrackingContext(rec.robot, cal.left, rec.handeye)
+    return rec, TrackingContext.of(rec, options.stereo)
 
 
 
 def _refine(pipe: Pipeline, run: RunLog, writer: TrajectoryWriter, extra: list[str]) -> None:
     """An offline estimator's refined estimates replace every streamed row and tip."""
-    refined = pipe.estimator.finish()
+    refined = pipe.finish()
     if refined is None:
         return
     run.tips, rows = [], []
@@ -143,15 +143,26 @@ def _refine(pipe: Pipeline, run: RunLog, writer: TrajectoryWriter, extra: list[s
 
 def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
           progress: bool = True, max_frames: int | None = None, quiet: bool = False,
-          topics: TopicSelection = TopicSelection()) -> dict:
-    """Run one estimator over a recording; write the outputs into ``out``; return metrics.
+          topics: TopicSelection = TopicSelection(), overwrite: bool = False) -> dict:
+    """Run one estimator over a recording; write the outputs into ``out``; return
+    metrics.json's content.
 
-    ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`).
+    ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`);
+    ``overwrite``: replace another run's files in ``out`` (refused otherwise).
 
-    The returned dict is metrics.json's content plus ``timing`` (median ms
-    per stage) and ``fps``. The process keeps freed frame buffers for reuse
-    (:func:`graphtrack.allocator.keep_freed_memory`).
+    Raises InputError, as the command line exits 2: options out of range
+    (:meth:`TrackOptions.check`), ``out`` the recording folder or inside its own
+    folders, or holding another run's files; a recording that cannot be read; and,
+    after metrics.json is written, a run that tracked no frame or whose tool tip was
+    out of view in every frame (:func:`graphtrack.io.run_output.require_tracked`,
+    :func:`~graphtrack.io.run_output.require_tool_in_front`). The process keeps freed
+    frame buffers for reuse (:func:`graphtrack.allocator.keep_freed_memory`).
     """
+    options.check()
+    if max_frames is not None and max_frames < 1:
+        raise InputError("--max-frames must be at least 1")
+    outside_recording(out, path)
+    prepare_run_dir(out, overwrite)
     keep_freed_memory()
     rec, ctx = _open(path, options, quiet, topics)
     check_truth(path)   # for evaluation only (never given to the estimator): refused before the run
@@ -172,12 +183,13 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     with TrajectoryWriter(out, extra_columns=extra) as writer:
         for item, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=ctx.stereo):
             if not isinstance(item, FrameError):
-                item = untrackable(item, rec.robot.n_joints, run.last_stamp) or item
+                item = pipe.check(item) or item
             if isinstance(item, FrameError):
                 run.skipped.skip(item, quiet)
                 continue
             frame = item
-            if grey is None and pipe.needs_images and (grey := _grey_markers(frame, ctx, options, rec.path / "robot.json")):
+            if grey is None and pipe.needs_images and (
+                    grey := _grey_markers(frame, ctx, options, rec.path / "robot.json")):
                 notes.append(grey)
                 warn(f"warning: {grey}", quiet)
             est, det, obs, ms = pipe.step(frame)
@@ -205,6 +217,30 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         bar.close()
     if overlay is not None:
         overlay.close()
+    result = _metrics(path, out, options, rec, ctx, pipe, run, wall, notes, quiet)
+    write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
+    require_tracked(result, out)   # no tracked frame: an error, never a silent success
+    require_tool_in_front(result, Path(path) / "handeye.yaml")
+    return result
+
+
+def near_image(camera, points: np.ndarray) -> np.ndarray:
+    """Which camera-frame points (N, 3) m lie in front of the camera and project within one
+    image diagonal of the image, judged by the pinhole (K) projection: outside the calibrated
+    field of view the distortion polynomial folds back, putting a point just beyond a
+    wide-angle view thousands of pixels away (or inside the image)."""
+    p = np.asarray(points, float).reshape(-1, 3)
+    ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
+    uv = np.full((len(p), 2), np.nan)
+    uv[ok] = camera.project_undistorted(p[ok])
+    d, W, H = camera.diagonal, camera.width, camera.height
+    return ok & (uv[:, 0] >= -d) & (uv[:, 0] < W + d) & (uv[:, 1] >= -d) & (uv[:, 1] < H + d)
+
+
+def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, pipe: Pipeline,
+             run: RunLog, wall: float, notes: list[str], quiet: bool) -> dict:
+    """metrics.json's content for a finished run (:func:`_result`, the run's summary, the
+    estimator's report, the stretches without detections, the warnings kept)."""
     result = _result(path, out, options, rec, ctx, run, pipe.left_only)
     result.update(run.summary(wall))
     result["estimator_report"] = pipe.estimator.report()
@@ -220,21 +256,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                         "tool_tip")
         warn(f"warning: {warnings[-1]}", quiet)
     result["recording_warnings"] = capped(warnings)
-    write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     return result
-
-
-def near_image(camera, points: np.ndarray) -> np.ndarray:
-    """Which camera-frame points (N, 3) m lie in front of the camera and project within one
-    image diagonal of the image, judged by the pinhole (K) projection: outside the calibrated
-    field of view the distortion polynomial folds back, putting a point just beyond a
-    wide-angle view thousands of pixels away (or inside the image)."""
-    p = np.asarray(points, float).reshape(-1, 3)
-    ok = np.isfinite(p).all(axis=1) & (p[:, 2] > 0)
-    uv = np.full((len(p), 2), np.nan)
-    uv[ok] = camera.project_undistorted(p[ok])
-    d, W, H = camera.diagonal, camera.width, camera.height
-    return ok & (uv[:, 0] >= -d) & (uv[:, 0] < W + d) & (uv[:, 1] >= -d) & (uv[:, 1] < H + d)
 
 
 #: recording warnings kept in metrics.json (the rest counted)

@@ -22,7 +22,10 @@ from graphtrack.estimate.gating import gate_along
 from graphtrack.estimate.observation_models import END_SIGMA
 from graphtrack.geometry.shaft_end import end_pixel, front_point
 from graphtrack.io.context import TrackingContext
+from graphtrack.errors import FrameError, InputError, check_seed
 from graphtrack.io.frame import Frame
+from graphtrack.io.frame_checks import frame_problem, right_problem
+from graphtrack.io.joint_units import joint_bounds
 from graphtrack.robot.features import base_features, shaft_lines
 
 ESTIMATOR = "smoother"   #: the default estimator: the fixed-lag smoother
@@ -47,6 +50,21 @@ class TrackOptions:
     seed: int = 0
     tip_feature: str | None = None
     stereo: bool = True
+
+    def check(self) -> TrackOptions:
+        """Raise InputError naming the option of a value out of range (the command line's
+        checks, for a caller in Python); return self."""
+        from graphtrack.detect.base import OBSERVATION_MODELS
+        from graphtrack.estimate import ESTIMATORS
+
+        if self.estimator not in ESTIMATORS:
+            raise InputError(f"estimator {self.estimator!r}: choose from {', '.join(ESTIMATORS)}")
+        if self.observation not in OBSERVATION_MODELS:
+            raise InputError(f"observation {self.observation!r}: choose from {', '.join(OBSERVATION_MODELS)}")
+        check_seed(self.seed)
+        self.detection.check()
+        self.estimation.check()
+        return self
 
 
 #: the widest association gate (px at full size), see Pipeline.gate
@@ -79,8 +97,12 @@ class Pipeline:
     """
 
     def __init__(self, ctx: TrackingContext, options: TrackOptions):
+        options.check()
+        if ctx.stereo and not options.stereo:   # --mono: the right camera is not used
+            ctx = dataclasses.replace(ctx, right=None, right_T_left=None)
         self.ctx = ctx
         self.options = options
+        self.last_stamp: float | None = None   # of the last frame stepped (stamps must increase)
         det = options.detection
         self.scale = det.scale or auto_detect_scale(ctx.camera.width)
         self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
@@ -228,7 +250,31 @@ class Pipeline:
             return None
         return np.concatenate([end.point, end.direction])[None]
 
+    def check(self, frame: Frame) -> FrameError | None:
+        """Why ``frame`` cannot be tracked (a FrameError with its skip reason, as a recording's
+        frames are checked: :func:`graphtrack.io.frame_checks.frame_problem`, and a stamp
+        not after the last stepped frame's), or None."""
+        robot, cam = self.ctx.robot, self.ctx.camera
+        problem = frame_problem(frame, robot.n_dh, (cam.height, cam.width), joint_bounds(robot, robot.n_dh),
+                                robot.has_gripper)
+        if problem is None and not (np.isfinite(frame.stamp)
+                                    and (self.last_stamp is None or frame.stamp > self.last_stamp)):
+            problem = FrameError(frame.index, "stamp_order",
+                                 f"stamp {frame.stamp!r} is not after the previous frame's {self.last_stamp!r}")
+        return problem
+
     def step(self, frame: Frame):
+        """Track one frame: (Estimate, Detection | None, Observation | None, per-stage ms).
+
+        Raises the FrameError of :meth:`check` for a frame that cannot be tracked (nothing
+        changes then); a right image of another size or a copy of the left one is not used
+        (a left-only update). An offline estimator (``batch``) answers each frame with its
+        online estimate; :meth:`finish` returns the refined ones."""
+        problem = self.check(frame)
+        if problem is not None:
+            raise problem
+        if self.stereo and right_problem(frame, (self.ctx.camera.height, self.ctx.camera.width)) is not None:
+            frame = dataclasses.replace(frame, image_right=None)
         ms = {}
         detection = observation = None
         self.right = (None, None)
@@ -250,7 +296,13 @@ class Pipeline:
         self.last_E = estimate.E
         self.last_std = None if estimate.std is None else np.asarray(estimate.std, float)
         self.last_cov = None if estimate.cov is None else np.asarray(estimate.cov, float)
+        self.last_stamp = frame.stamp
         return estimate, detection, observation, ms
+
+    def finish(self):
+        """After the last frame: an offline estimator's refined estimates, one per stepped
+        frame in order (``batch``); None for an online one (its answers are final)."""
+        return self.estimator.finish()
 
 
 def tip_point(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:

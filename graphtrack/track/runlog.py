@@ -23,19 +23,6 @@ def warn(message: str, quiet: bool) -> None:
         print(f"graphtrack: {message}", file=sys.stderr)
 
 
-def untrackable(frame: Frame, n_joints: int, last_stamp: float | None) -> FrameError | None:
-    """Why a decoded frame cannot be tracked (a FrameError with its skip reason), or None:
-    a joint vector of another length or with NaN, or a stamp not after the last tracked one."""
-    if len(frame.q) != n_joints or not np.all(np.isfinite(frame.q)):
-        return FrameError(frame.index, "joint_count" if len(frame.q) != n_joints else "nan_joints",
-                          f"joint vector has {len(frame.q)} values (finite: {bool(np.all(np.isfinite(frame.q)))}), "
-                          f"expected {n_joints}")
-    if not (np.isfinite(frame.stamp) and (last_stamp is None or frame.stamp > last_stamp)):
-        return FrameError(frame.index, "stamp_order",
-                          f"stamp {frame.stamp!r} is not after the previous frame's {last_stamp!r}")
-    return None
-
-
 class SkipCounter(Counter):
     """Skipped frames per reason, and the first message of each (metrics.json ``skip_examples``)."""
 
@@ -64,10 +51,6 @@ class RunLog:
     skipped: SkipCounter = field(default_factory=SkipCounter)
     read: int = 0
     informative: list = field(default_factory=list)   # per tracked frame: a shaft or marker detected
-
-    @property
-    def last_stamp(self) -> float | None:
-        return self.rows[-1][1] if self.rows else None
 
     def add(self, frame: Frame, E: np.ndarray, tip: np.ndarray, ms: dict, total_ms: float,
             frame_ms: float) -> None:

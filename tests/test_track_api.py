@@ -1,0 +1,122 @@
+"""The Python API as the README shows it: Pipeline.step on a recording's frames (stereo
+too) equals `track`, frames a caller builds are checked as a recording's are, an
+offline estimator's refinement comes from Pipeline.finish, and `track` raises
+InputError where the command line exits 2."""
+import csv
+import dataclasses
+
+import numpy as np
+import pytest
+
+from graphtrack.detect.options import DetectionOptions
+from graphtrack.errors import FrameError, InputError
+from graphtrack.estimate.options import EstimatorOptions
+from graphtrack.geometry.se3 import matrix_to_quaternion
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.recording import open_recording
+from graphtrack.sim import simulate
+from graphtrack.track import Pipeline, TrackOptions, track
+
+CANNY = DetectionOptions(detector="canny")
+
+
+@pytest.fixture(scope="module")
+def stereo(tmp_path_factory):
+    return simulate(tmp_path_factory.mktemp("api") / "rec", frames=6, seed=700100, size=(270, 480), form="folder",
+                    stereo=True, progress=False)
+
+
+def _rows(out):
+    with (out / "trajectory.csv").open() as f:
+        return np.array([[float(r[k]) for k in ("tx", "ty", "tz", "qx", "qy", "qz", "qw")] for r in csv.DictReader(f)])
+
+
+def _pose(Es):
+    """(tx, ty, tz, qx, qy, qz, qw) per pose, as trajectory.csv holds them (exact: repr)."""
+    return np.array([np.concatenate([E[:3, 3], matrix_to_quaternion(E[:3, :3])]) for E in Es])
+
+
+def _stepped(rec, options, ctx=None):
+    pipe = Pipeline(ctx or TrackingContext.of(rec, options.stereo), options)
+    poses = []
+    for frame in rec.frames():
+        assert not isinstance(frame, FrameError)
+        poses.append(pipe.step(frame)[0].E)
+    return pipe, poses
+
+
+@pytest.mark.parametrize("stereo_run", [True, False])
+def test_the_readme_loop_equals_track_mono_and_stereo(stereo, tmp_path, stereo_run):
+    options = TrackOptions(estimator="pf", detection=CANNY, stereo=stereo_run,
+                           estimation=EstimatorOptions(particles=200))
+    rec = open_recording(stereo)
+    pipe, poses = _stepped(rec, options)
+    assert pipe.stereo == stereo_run
+    track(stereo, tmp_path / "cli", options, progress=False, quiet=True)
+    np.testing.assert_array_equal(_pose(poses), _rows(tmp_path / "cli"))
+
+
+def test_mono_options_on_a_stereo_context_use_the_left_image_only(stereo):
+    rec = open_recording(stereo)
+    options = TrackOptions(estimator="pf", detection=CANNY, stereo=False, estimation=EstimatorOptions(particles=200))
+    pipe, mono = _stepped(rec, options, TrackingContext.of(rec))      # a stereo context, --mono options
+    assert not pipe.stereo and not pipe.ctx.stereo
+    _, left_only = _stepped(rec, options, TrackingContext.of(rec, stereo=False))
+    np.testing.assert_array_equal(np.array(mono), np.array(left_only))
+
+
+def test_a_frame_built_by_the_caller_is_checked_as_a_recordings_are(stereo):
+    rec = open_recording(stereo)
+    frames = list(rec.frames())
+    pipe = Pipeline(TrackingContext.of(rec), TrackOptions(estimator="kinematics"))
+    f0 = frames[0]
+    bad = {
+        "nan_joints": dataclasses.replace(f0, joints=np.where(np.arange(6) == 2, np.nan, f0.joints)),
+        "joint_count": dataclasses.replace(f0, joints=f0.joints[:5]),
+        "joint_range": dataclasses.replace(f0, joints=np.degrees(f0.joints) + 400.0),
+        "image_size": dataclasses.replace(f0, image=f0.image[::2, ::2]),
+    }
+    for reason, frame in bad.items():
+        with pytest.raises(FrameError) as e:
+            pipe.step(frame)
+        assert e.value.reason == reason and str(e.value).startswith("frame 0: ")
+    pipe.step(frames[1])
+    with pytest.raises(FrameError) as e:                  # not after the last stepped frame
+        pipe.step(frames[0])
+    assert e.value.reason == "stamp_order"
+    # a right image of another size is not used: a left-only update, counted
+    stereo_pipe = Pipeline(TrackingContext.of(rec), TrackOptions(estimator="pf", detection=CANNY))
+    stereo_pipe.step(dataclasses.replace(f0, image_right=f0.image_right[::2, ::2]))
+    assert stereo_pipe.left_only == 1
+
+
+def test_finish_returns_the_batch_refinement_track_writes(stereo, tmp_path):
+    options = TrackOptions(estimator="batch", detection=CANNY)
+    rec = open_recording(stereo)
+    pipe, _ = _stepped(rec, options)
+    refined = pipe.finish()
+    track(stereo, tmp_path / "b", options, progress=False, quiet=True)
+    np.testing.assert_array_equal(_pose([e.E for e in refined]), _rows(tmp_path / "b"))
+    assert Pipeline(TrackingContext.of(rec), TrackOptions(estimator="pf")).finish() is None
+
+
+@pytest.mark.parametrize("options, match", [
+    (TrackOptions(observation="bar"), r"observation 'bar': choose from canny, "),
+    (TrackOptions(estimator="ekf"), r"estimator 'ekf': choose from kinematics, pf, smoother, batch"),
+    (TrackOptions(estimation=EstimatorOptions(lag=-1)), r"--lag must be positive"),
+    (TrackOptions(seed=-1), r"--seed must be an integer"),
+])
+def test_track_checks_its_options_before_writing(stereo, tmp_path, options, match):
+    with pytest.raises(InputError, match=match):
+        track(stereo, tmp_path / "o", options, progress=False, quiet=True)
+    assert not (tmp_path / "o").exists()
+
+
+def test_track_raises_where_the_command_line_exits_2(stereo, tmp_path):
+    options = TrackOptions(estimator="kinematics")
+    with pytest.raises(InputError, match=r"is the recording folder itself"):
+        track(stereo, stereo, options, progress=False, quiet=True)
+    track(stereo, tmp_path / "o", options, progress=False, quiet=True)
+    with pytest.raises(InputError, match=r"holds another run's files"):
+        track(stereo, tmp_path / "o", options, progress=False, quiet=True)
+    track(stereo, tmp_path / "o", options, progress=False, quiet=True, overwrite=True)
