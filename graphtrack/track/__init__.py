@@ -150,13 +150,10 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     ``topics``: the arm and bag topics to read (default: detected, :mod:`graphtrack.io.topics`);
     ``overwrite``: replace another run's files in ``out`` (refused otherwise).
 
-    Raises InputError, as the command line exits 2: options out of range
-    (:meth:`TrackOptions.check`), ``out`` the recording folder or inside its own
-    folders, or holding another run's files; a recording that cannot be read; and,
-    after metrics.json is written, a run that tracked no frame or whose tool tip was
-    out of view in every frame (:func:`graphtrack.io.run_output.require_tracked`,
-    :func:`~graphtrack.io.run_output.require_tool_in_front`). The process keeps freed
-    frame buffers for reuse (:func:`graphtrack.allocator.keep_freed_memory`).
+    Raises InputError where the command line exits 2: bad options (:meth:`TrackOptions.check`),
+    an ``out`` that is (inside) the recording or holds another run's files, an unreadable
+    recording; after metrics.json, a run that tracked nothing or never had the tool in view
+    (:mod:`graphtrack.io.run_output`). Freed frame buffers are kept (:mod:`graphtrack.allocator`).
     """
     options.check()
     if max_frames is not None and max_frames < 1:
