@@ -53,7 +53,7 @@ def test_cached_recording(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize("args", [
-    ["--frames", "0"], ["--frames", "-3"], ["--scene", "moon"], ["--size", "32x960"],
+    ["--frames", "0"], ["--frames", "-3"], ["--frames", "100000000"], ["--scene", "moon"], ["--size", "32x960"],
     ["--size", "540x50"], ["--size", "big"], ["--form", "zip"],
 ])
 def test_bad_input_exits_2(tmp_path, capsys, args):
@@ -67,3 +67,19 @@ def test_unwritable_out_exits_2(tmp_path, capsys):
     f.write_text("x")
     assert main(["simulate", str(f / "sub"), "--frames", "2", "--size", "120x160"]) == 2
     assert "cannot write" in capsys.readouterr().err
+
+
+def test_a_recording_that_was_not_simulated_is_never_replaced(tmp_path, capsys):
+    """simulate into a lab's recording folder (a bag, robot.json, no truth.csv) deleted the
+    bag with exit 0: refused unless --overwrite; a simulated one is replaced as before."""
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    (lab / "patient7.bag").write_bytes(b"precious")
+    (lab / "robot.json").write_text("{}")
+    args = ["simulate", str(lab), "--frames", "2", "--size", "120x160", "--no-progress"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "lab: holds a recording that was not simulated (robot.json, patient7.bag)" in err and "--overwrite" in err
+    assert (lab / "patient7.bag").read_bytes() == b"precious" and (lab / "robot.json").read_text() == "{}"
+    assert main(args + ["--overwrite"]) == 0 and not (lab / "patient7.bag").exists()
+    assert main(args + ["--seed", "1"]) == 0     # simulated before (truth.csv): replaced without asking

@@ -37,12 +37,15 @@ def add_parser(sub) -> None:
                    help="also render the right camera (5 mm baseline, 2 deg vergence): right images, "
                         "K2/D2/R/T, labels_right.csv; the left recording is unchanged")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a recording in OUT that was not simulated (refused otherwise)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
-                   progress=args.progress, stereo=args.stereo, image_format=args.image_format)
+                   progress=args.progress, stereo=args.stereo, image_format=args.image_format,
+                   overwrite=args.overwrite)
     print(f"wrote {out}")
     return 0

@@ -70,11 +70,16 @@ class SimFrame:
     image_right: np.ndarray | None = None
 
 
+#: the longest simulated recording (frames)
+MAX_FRAMES = 1_000_000
+
+
 def check_args(scene: str, frames: int, size) -> tuple[int, int]:
     if scene not in SCENES:
         raise InputError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
-    if int(frames) != frames or frames <= 0:
-        raise InputError(f"--frames must be a positive integer, got {frames}")
+    if int(frames) != frames or not 0 < frames <= MAX_FRAMES:
+        raise InputError(f"--frames must be an integer in 1..{MAX_FRAMES} (9 hours at 30 frames/s; the "
+                         f"simulation holds every frame's poses in memory), got {frames}")
     try:
         H, W = (int(v) for v in size)
     except (TypeError, ValueError):
@@ -237,7 +242,21 @@ def _project_tip(cam, tip: np.ndarray) -> np.ndarray:
     return np.where(front[:, None], cam.project_raw(np.where(front[:, None], tip, 1.0)), np.nan)
 
 
-def _prepare_out(out: Path) -> None:
+#: what a recording folder may hold that simulate replaces
+RECORDING_FILES = ("robot.json", "camera_calibration.yaml", "handeye.yaml", "joints.csv", "frames", "frames_right",
+                   "video.mp4", "labels.csv", "labels_right.csv")
+
+
+def _prepare_out(out: Path, overwrite: bool = False) -> None:
+    """Make ``out`` ready for a simulated recording. A folder holding a recording that was
+    not simulated (recording files, or a bag, and no truth.csv, which simulate always
+    writes) is refused unless ``overwrite``: it may be a lab's own recording."""
+    found = [n for n in RECORDING_FILES if (out / n).exists()] + [p.name for p in out.glob("*.bag")] \
+        if out.is_dir() else []
+    if found and not (out / "truth.csv").is_file() and not overwrite:
+        raise InputError(f"{out}: holds a recording that was not simulated ({', '.join(found[:4])}"
+                         f"{', ...' if len(found) > 4 else ''}); simulate would replace it: choose another "
+                         "folder, or --overwrite")
     writable_dir(out, "the recording there")
     for old in list(out.glob("*.bag")) + [out / n for n in ("frames", "frames_right", "joints.csv", "labels.csv",
                                                              "labels_right.csv", "scenario.json")]:
@@ -249,7 +268,8 @@ def _prepare_out(out: Path) -> None:
 
 def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
              compressed: bool = False, form: str = "bag", randomize: bool = False, progress: bool = True,
-             noise_free: bool = False, stereo: bool = False, image_format: str = "png") -> Path:
+             noise_free: bool = False, stereo: bool = False, image_format: str = "png",
+             overwrite: bool = False) -> Path:
     """Write a simulated recording into ``out_dir`` (sequence format + truth.csv) and return it.
 
     scene: "structured" | "tissue"; frames > 0; size = (H, W) px; form: "bag"
@@ -259,8 +279,9 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
     joint noise, no sensor noise/blur/flap (for geometry tests). ``stereo``: also
     the right images (``/stereo/right/image[/compressed]`` or frames_right/), K2, D2,
     R, T in camera_calibration.yaml and labels_right.csv. ``randomize``: also
-    scenario.json (what was drawn; sim/scenario.py).
-    Frames are rendered and written one at a time.
+    scenario.json (what was drawn; sim/scenario.py). ``out_dir`` holding a recording
+    that was not simulated is refused unless ``overwrite`` (one simulated before is
+    replaced). Frames are rendered and written one at a time.
     """
     if image_format not in ("png", "jpeg"):
         raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
@@ -269,7 +290,7 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
     check_seed(seed)
     sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
     out = Path(out_dir)
-    _prepare_out(out)
+    _prepare_out(out, overwrite)
     save_robot_json(out / "robot.json", sim.robot)
     save_calibration(out / "camera_calibration.yaml", sim.calibration)
     save_handeye(out / "handeye.yaml", sim.E_nominal)
