@@ -160,3 +160,13 @@ def test_a_recording_without_labels_is_named_in_the_notes(rec, tmp_path):
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert {r["frames_tracked"] for r in rows} == {"12"} and {r["frames_skipped"] for r in rows} == {"0"}
+
+
+def test_recording_names_are_unique_past_every_folder_name():
+    """a/rec b/rec c/rec_2: b's clash is not numbered into c's name (that dropped a
+    recording from the study with exit 0)."""
+    from graphtrack.study.plan import recording_names
+
+    assert recording_names(["/p1/rec", "/p2/rec", "/p3/rec_2"]) == ["rec", "rec_3", "rec_2"]
+    assert recording_names(["/p3/rec_2", "/p1/rec", "/p2/rec"]) == ["rec_2", "rec", "rec_3"]
+    assert recording_names(["/a/x", "/b/x", "/c/x"]) == ["x", "x_2", "x_3"]

@@ -59,17 +59,21 @@ def seed_dependent(estimator: str, observation: str | None) -> bool:
 
 
 def recording_names(paths: list[str]) -> list[str]:
-    """Unique, readable names for the recordings (folder names, numbered on clashes)."""
-    names, seen = [], {}
+    """Unique, readable names for the recordings: folder names, a clash numbered _2, _3, ...
+    past every name already taken (``a/rec b/rec c/rec_2``: rec, rec_3, rec_2)."""
+    bases = []
     for p in paths:
         base = Path(p).resolve()
         name = base.name if base.is_dir() else base.stem
-        name = "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "recording"
-        if name in seen:
-            seen[name] += 1
-            name = f"{name}_{seen[name]}"
-        else:
-            seen[name] = 1
+        bases.append("".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "recording")
+    names, taken = [], set()
+    for name in bases:
+        if name in taken:   # the suffix skips every folder name, so no later one is taken
+            k = 2
+            while f"{name}_{k}" in taken or f"{name}_{k}" in bases:
+                k += 1
+            name = f"{name}_{k}"
+        taken.add(name)
         names.append(name)
     return names
 
