@@ -170,3 +170,11 @@ def test_recording_names_are_unique_past_every_folder_name():
     assert recording_names(["/p1/rec", "/p2/rec", "/p3/rec_2"]) == ["rec", "rec_3", "rec_2"]
     assert recording_names(["/p3/rec_2", "/p1/rec", "/p2/rec"]) == ["rec_2", "rec", "rec_3"]
     assert recording_names(["/a/x", "/b/x", "/c/x"]) == ["x", "x_2", "x_3"]
+
+
+def test_a_missing_weights_file_is_refused_before_the_study(rec, tmp_path, capsys):
+    """It failed every cell after the fact, and its study.json then refused the corrected command."""
+    out = tmp_path / "study"
+    assert _compare([rec], out, "--weights", str(tmp_path / "none.pt")) == 2
+    assert f"--weights {tmp_path / 'none.pt'}: weights file not found" in capsys.readouterr().err
+    assert not out.exists()

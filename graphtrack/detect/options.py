@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.pixel_sets import ALPHA, BETA
@@ -45,6 +46,8 @@ class DetectionOptions:
         if self.weights and self.detector == "canny":
             raise InputError(f"--weights {self.weights}: the canny detector has no weights "
                              "(they are for --detector learned or sold2)")
+        if self.weights and not Path(self.weights).is_file():   # before any work (a study's cells)
+            raise InputError(f"--weights {self.weights}: weights file not found")
         return self
 
     def detector_keywords(self) -> dict:
