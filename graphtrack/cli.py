@@ -10,13 +10,14 @@ Exit status: 0 success; 2 bad input, including a ``track``/``refine`` run that
 tracked no frame (every frame skipped: the message gives the skip counts and
 the first skipped frame; metrics.json is still written) and a full disk;
 1 an internal error (a bug: one line asking for a report; set
-``GRAPHTRACK_DEBUG=1`` for the traceback); 130 interrupted.
+``GRAPHTRACK_DEBUG=1`` for the traceback); 130 interrupted (Ctrl-C or SIGTERM).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -76,6 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     set_thread_environment(_threads_in(argv))
     args = None
+    previous = _stop_on_sigterm()
     try:
         parser = build_parser()   # imports the commands' libraries: Ctrl-C may come here too
         args = parser.parse_args(argv)
@@ -107,6 +109,21 @@ def main(argv: list[str] | None = None) -> int:
         print(f"graphtrack: internal error: {type(e).__name__}{at}: {msg} (a bug: please report it with "
               "the command line; GRAPHTRACK_DEBUG=1 shows the traceback)", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _stop_on_sigterm():
+    """SIGTERM (``kill``) stops a command as Ctrl-C does: the files written so far kept, a
+    study's workers stopped. Returns the previous handler (None off the main thread)."""
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+
+    try:
+        return signal.signal(signal.SIGTERM, stop)
+    except ValueError:   # not the main thread
+        return None
 
 
 if __name__ == "__main__":

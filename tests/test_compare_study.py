@@ -178,3 +178,44 @@ def test_a_missing_weights_file_is_refused_before_the_study(rec, tmp_path, capsy
     assert _compare([rec], out, "--weights", str(tmp_path / "none.pt")) == 2
     assert f"--weights {tmp_path / 'none.pt'}: weights file not found" in capsys.readouterr().err
     assert not out.exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("how", ["sigint_group", "sigterm_parent"])
+def test_stopping_a_parallel_study_leaves_no_workers_and_no_false_failures(rec, tmp_path, how):
+    """Ctrl-C (SIGINT to the whole process group) or kill (SIGTERM to the parent) during
+    `compare --workers 2`: exit 130, no worker left running (they were orphaned at 390 MB
+    each), and no cell marked failed by the interrupt (workers broke mid-import)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "study"
+    p = subprocess.Popen([sys.executable, "-m", "graphtrack.cli", "compare", str(rec), "--out", str(out),
+                          "--estimators", "kinematics,pf,smoother", "--observations", "canny,line-intensities",
+                          "--workers", "2", "--max-frames", "12", "--particles", "64", "--quiet"],
+                         start_new_session=True, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    t0 = time.monotonic()
+    while not (out / "runs").is_dir() and time.monotonic() - t0 < 60:
+        time.sleep(0.2)
+    time.sleep(3.0)                                        # workers importing and running cells
+    if how == "sigint_group":
+        os.killpg(p.pid, signal.SIGINT)
+    else:
+        p.send_signal(signal.SIGTERM)
+    err = p.communicate(timeout=60)[1]
+    assert p.returncode == 130 and "interrupted" in err and "Traceback" not in err, (p.returncode, err)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30:                      # every process of the session has ended
+        try:
+            os.killpg(p.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        pytest.fail("study workers still running after the study was stopped")
+    failed = [json.loads(e.read_text()) for e in out.glob("runs/*/*/error.json")]
+    assert not any(f.get("internal") for f in failed), failed

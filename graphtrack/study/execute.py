@@ -139,7 +139,8 @@ def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[
                 answers.append(run_cell(c))
                 bar.update(1)
             return answers
-        with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
+        ex = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_worker_init)
+        try:
             futures = {ex.submit(run_cell, c): c for c in cells}
             for fut in as_completed(futures):
                 c = futures[fut]
@@ -148,7 +149,29 @@ def run_local(cells: list[Cell], workers: int = 1, quiet: bool = False) -> list[
                 except Exception as e:  # noqa: BLE001 - e.g. a worker killed by the OS
                     answers.append(_fail(c, _error(e)))
                 bar.update(1)
+        except BaseException:   # Ctrl-C or SIGTERM: no queued cell starts, the running ones stop
+            for proc in list((getattr(ex, "_processes", None) or {}).values()):
+                proc.terminate()
+            ex.shutdown(wait=False, cancel_futures=True)
+            raise
+        ex.shutdown()
     return answers
+
+
+def _worker_init() -> None:
+    """A study worker ignores Ctrl-C, which the terminal sends to the whole process group:
+    the parent stops the study (a worker interrupted mid-import marked its cells failed).
+    On Linux it also ends with its parent (PR_SET_PDEATHSIG) instead of living on, orphaned,
+    when the parent is killed."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, int(signal.SIGTERM))   # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):   # not Linux
+        pass
 
 
 RAY_CONNECT_TIMEOUT_S = 10.0  #: a cluster address that does not answer within this is refused
