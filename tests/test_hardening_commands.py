@@ -55,11 +55,16 @@ def test_train_refuses_what_would_fail_after_hours(tmp_path, capsys):
              (["--out", tmp_path / "missing" / "w.pt"], "folder not found"),
              (["--out", out, "--seed", "-1"], "--seed must be an integer in 0..4294967295, got -1"),
              (["--out", out, "--seed", str(2**64)], "--seed must be an integer in 0..4294967295"),
-             (["--out", out, "--epochs", "0"], "--epochs must be at least 1")]
+             (["--out", out, "--epochs", "0"], "--epochs must be at least 1"),
+             (["--out", tmp_path / "w.txt"], "--out " + str(tmp_path / "w.txt") + ": name a .pt file")]
+    text = tmp_path / "notes.pt"
+    text.write_text("my notes")
+    cases += [(["--out", out, "--init", text], f"--init {text}: not a torch weights file"),   # before simulating
+              (["--out", text], f"--out {text}: not a torch weights file (state dict) (")]
     for args, words in cases:
         code, err = run_cli(["train", "--quiet", *args], capsys)
         assert code == 2 and words in error_line(err), (args, err)
-    assert not out.exists()
+    assert not out.exists() and text.read_text() == "my notes"
 
 
 def test_train_names_a_data_cache_it_cannot_use(tmp_path, capsys):

@@ -83,6 +83,8 @@ def _check_arguments(args) -> None:
     if args.init is not None and not Path(args.init).is_file():
         raise InputError(f"{args.init}: weights file not found")
     _check_writable(Path(args.out), "--out")
+    if Path(args.out).suffix not in (".pt", ".pth"):
+        raise InputError(f"--out {args.out}: name a .pt file (the weights are a torch state dict)")
     if args.data and not Path(args.data).is_file():
         _check_writable(Path(args.data), "--data")
 
@@ -98,6 +100,13 @@ def run(args) -> int:
     if args.device == "cuda":
         if not torch.cuda.is_available():
             raise InputError("--device cuda: no CUDA device available")
+    from graphtrack.detect.learned import load_weights
+    for path, what in ((args.init, "--init"), (args.out if Path(args.out).exists() else None, "--out")):
+        if path is not None:   # before the frames are simulated (minutes); --out: never a file of another kind
+            try:
+                load_weights(path)
+            except InputError as e:
+                raise InputError(f"{what} {e}" + ("; choose another --out" if what == "--out" else "")) from None
     out = Path(args.out)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
     t0 = time.perf_counter()

@@ -69,8 +69,9 @@ def load_weights(path: str | Path | None = None):
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as e:  # noqa: BLE001 - any unreadable file is bad input
-        msg = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
-        raise InputError(f"{path}: not a torch weights file (state dict) ({msg[:120]})") from None
+        msg = str(e).strip().splitlines()[0].split(". ")[0] if str(e).strip() else ""
+        raise InputError(f"{path}: not a torch weights file (state dict) ({type(e).__name__}"
+                         f"{': ' + msg if msg else ''})") from None
     meta = {}
     if isinstance(obj, dict) and "state_dict" in obj:
         meta = {k: v for k, v in obj.items() if k != "state_dict"}
