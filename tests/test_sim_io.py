@@ -54,7 +54,7 @@ def test_cached_recording(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize("args", [
     ["--frames", "0"], ["--frames", "-3"], ["--frames", "100000000"], ["--scene", "moon"], ["--size", "32x960"],
-    ["--size", "540x50"], ["--size", "big"], ["--form", "zip"],
+    ["--size", "540x50"], ["--size", "big"], ["--form", "zip"], ["--form", "folder", "--compressed"],
 ])
 def test_bad_input_exits_2(tmp_path, capsys, args):
     assert main(["simulate", str(tmp_path / "o"), "--frames", "2", "--size", "120x160"] + args) == 2

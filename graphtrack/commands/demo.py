@@ -45,7 +45,7 @@ def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZ
     if detector is None:
         detector, _ = default_detector()
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
-    say(f"graphtrack demo: simulating {frames}-frame recordings ({size[1]}x{size[0]}) into the cache "
+    say(f"graphtrack demo: simulating {frames}-frame recordings ({size[0]}x{size[1]}, height x width) into the cache "
         f"(first run only)")
     size = tuple(size)
     recs = []

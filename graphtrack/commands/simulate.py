@@ -43,6 +43,9 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    if args.compressed and args.form == "folder":
+        raise InputError("--compressed makes the bag's images CompressedImage messages; the folder form has "
+                         "no bag (--image-format jpeg compresses its files)")
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
                    progress=args.progress, stereo=args.stereo, image_format=args.image_format,
