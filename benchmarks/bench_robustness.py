@@ -205,7 +205,7 @@ def _causal_cell(args) -> float | None:
         cell = Cell(runs.name, path, "batch", OBSERVATION, str(out), options)
         try:
             track(path, out, cell.track_options(), progress=False, quiet=True, max_frames=at + 1,
-                  topics=cell.topics())
+                  topics=cell.topics(), overwrite=True)
         except Exception as exc:  # noqa: BLE001 (a failed cell is counted, as the study counts its own)
             print(f"causal bound: {runs.name} to frame {at}: {exc}", file=sys.stderr)
             return None

@@ -54,7 +54,7 @@ def _track(path: Path, out: Path, estimator: str, stereo: bool) -> dict:
 
     opts = TrackOptions(estimator=estimator, observation="line-intensities",
                         detection=DetectionOptions(detector="learned"), stereo=stereo)
-    m = track(path, out, opts, progress=False, quiet=True)
+    m = track(path, out, opts, progress=False, quiet=True, overwrite=True)
     with (out / "truth_errors.csv").open() as f:
         rows = list(csv.DictReader(f))
     m["_tip_mm"] = np.array([float(r["tip_mm"]) for r in rows])

@@ -112,7 +112,7 @@ def time_track(seq: Path, detector: str, estimator: str, frames: int) -> dict:
 
     opts = TrackOptions(estimator=estimator, detection=DetectionOptions(detector=detector))
     out = DATA / "out"
-    return track(seq, out, opts, progress=False, quiet=True, max_frames=frames)
+    return track(seq, out, opts, progress=False, quiet=True, max_frames=frames, overwrite=True)
 
 
 def _busy_loop() -> None:  # pragma: no cover - runs in a child process
