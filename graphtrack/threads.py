@@ -5,7 +5,8 @@ small, and on a machine where other processes (ROS, camera drivers, a second
 tracker) hold cores, libraries that start one thread per core spend their
 time waiting for each other. graphtrack therefore runs with ``n`` threads in
 every pool, one by default (``--threads N``). Measurements: benchmarks/RESULTS.md
-("busy core").
+("busy core"). A program that uses graphtrack as a library keeps its own thread
+counts: :func:`limit_threads` (n) runs it as the command line does.
 """
 from __future__ import annotations
 
