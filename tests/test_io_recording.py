@@ -618,3 +618,16 @@ def test_video_beside_frames_is_noted_as_unread(tmp_path):
     (seq / "video.mp4").write_bytes(b"x")
     got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "video.mp4" in w]
     assert got == [f"{seq / 'video.mp4'}: not read: frames/ holds the images (a recording has one or the other)"]
+
+
+def test_jaw_readings_for_a_robot_without_gripper_are_noted(tmp_path):
+    """The jaw is ignored (it was a joint_count skip of every frame); a robot.json that forgot
+    has_gripper would place the tip as if the jaws were closed, so the note says so."""
+    seq = write_meta(tmp_path / "seq")
+    (seq / "robot.json").write_text((seq / "robot.json").read_text().replace('"has_gripper": true',
+                                                                           '"has_gripper": false'))
+    write_folder(seq, make_frames(2))
+    rec = open_recording(seq)
+    assert [w for w in rec.warnings if "jaw" in w] == [
+        f"{seq}: the recording has jaw readings but {seq / 'robot.json'} has no has_gripper: the jaw is ignored "
+        "(a tool with jaws needs \"has_gripper\": true, or its tip is placed as if they were closed)"]

@@ -15,6 +15,10 @@ def consistency_notes(rec) -> list[str]:
     the recording does not have (labels of another recording?), and right images without
     the right camera's calibration (tracked left-only)."""
     notes = list(rec.calibration.notes)
+    if rec.has_jaw and not getattr(rec.robot, "has_gripper", True):
+        notes.append(f"{rec.path}: the recording has jaw readings but {rec.path / 'robot.json'} has no "
+                     "has_gripper: the jaw is ignored (a tool with jaws needs \"has_gripper\": true, or its tip "
+                     "is placed as if they were closed)")
     for name, labels in (("labels.csv", rec.labels), ("labels_right.csv", rec.labels_right)):
         beyond = sorted(k for k in (labels or {}) if k >= len(rec))
         if beyond:
