@@ -42,6 +42,7 @@ from graphtrack.io.topics import TopicSelection
 from graphtrack.io.video import StampedVideoWriter
 from graphtrack.robot.features import base_features, shaft_lines
 from graphtrack.track import MAX_GATE_PX
+from graphtrack.track.runlog import SkipCounter
 
 
 def _num(x) -> str:
@@ -115,9 +116,8 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
         header += [f"{k}_{i}" for k in ("rho", "theta", "x1", "y1", "x2", "y2", "Ee", "El")]
     header += ["n_markers", "markers", "ms"]
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
-    n = skipped = 0
-    reasons: dict[str, int] = {}
-    first_skip = ""
+    n = 0
+    skipped = SkipCounter()
     ms_all = []
     with (out / "detections.csv").open("w", newline="") as f, \
             tqdm(total=total, desc=f"detect {detector}", unit="frame", file=sys.stderr, disable=quiet) as bar:
@@ -132,11 +132,8 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
             n += 1
             bar.update(1)
             if isinstance(item, FrameError) or item.image is None:
-                skipped += 1
-                reason = item.reason if isinstance(item, FrameError) else "no_image"
-                reasons[reason] = reasons.get(reason, 0) + 1
-                first_skip = first_skip or (str(item) if isinstance(item, FrameError)
-                                            else f"frame {item.index}: no image")
+                skipped.skip(item if isinstance(item, FrameError) else FrameError(item.index, "no_image", "no image"),
+                             quiet=True)
                 continue
             t = time.perf_counter()
             d = detect_raw(det, item.image, ctx.camera, _predicted(rec, item.q, ctx.handeye, ctx.camera.K), gate)
@@ -157,7 +154,9 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
         writer.close()
     if right_csv is not None:
         right_csv.close()
-    return {"frames": n, "frames_skipped": skipped, "skipped_reasons": reasons, "first_skip": first_skip,
+    return {"frames": n, "frames_skipped": sum(skipped.values()), "skipped_reasons": dict(skipped),
+            # the first reason met holds the first skipped frame's message
+            "first_skip": next(iter(skipped.examples.values()), ""),
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
 
 

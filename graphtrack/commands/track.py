@@ -133,8 +133,6 @@ def unused_options(args) -> list[str]:
 
 
 def run(args) -> int:
-    if args.max_frames is not None and args.max_frames < 1:
-        raise InputError("--max-frames must be at least 1")
     options = options_from_args(args)
     for line in unused_options(args):
         warn(line, args.quiet)

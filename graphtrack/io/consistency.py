@@ -11,9 +11,10 @@ from graphtrack.io.folder import FolderSource
 
 
 def consistency_notes(rec) -> list[str]:
-    """Lines for the user on parts of a recording that will not be used: labels of frames
-    the recording does not have (labels of another recording?), and right images without
-    the right camera's calibration (tracked left-only)."""
+    """Lines for the user on a recording's parts that look wrong or will not be used (module
+    doc): the calibration's own notes (a dropped skew), jaw readings a jawless robot ignores,
+    labels of frames the recording does not have, right images without the right camera's
+    calibration, a suspicious baseline, principal point or focal-length ratio."""
     notes = list(rec.calibration.notes)
     if rec.has_jaw and not getattr(rec.robot, "has_gripper", True):
         notes.append(f"{rec.path}: the recording has jaw readings but {rec.path / 'robot.json'} has no "

@@ -83,8 +83,8 @@ class Recording:
     source: BagSource | FolderSource
     notes: list[str] = field(default_factory=list)
     labels_right: dict[int, np.ndarray] | None = None
-    right_size_skips: int = 0
-    right_same_skips: int = 0
+    #: frames whose right image right_problem() refused, by reason (image_size, same_as_left)
+    right_refused: dict[str, int] = field(default_factory=lambda: {"image_size": 0, "same_as_left": 0})
 
     def __len__(self) -> int:
         return len(self.source)
@@ -125,8 +125,7 @@ class Recording:
         {"missing": no right image within the stamp tolerance / no file, "corrupt": does not
         decode, "image_size": differs from ImageSize, "same_as_left": identical to the left
         image, a copy of it (no stereo rig gives two identical images)}."""
-        return {**self.source.right_skips, "image_size": self.right_size_skips,
-                "same_as_left": self.right_same_skips}
+        return {**self.source.right_skips, **self.right_refused}
 
     @property
     def kind(self) -> str:
@@ -195,10 +194,7 @@ class Recording:
             why = right_problem(item, (h, w))
             if why is not None:
                 item.image_right = None
-                if why == "image_size":
-                    self.right_size_skips += 1
-                else:
-                    self.right_same_skips += 1
+                self.right_refused[why] += 1
             yield item
 
 

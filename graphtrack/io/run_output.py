@@ -54,8 +54,7 @@ def outside_recording(out, sequence) -> None:
 
     seq, target = Path(sequence).resolve(), Path(out).resolve()
     same = target == seq or (target.exists() and seq.exists() and os.path.samefile(target, seq))
-    inside = next((seq / q.name for q in [target, *target.parents]
-                   if q.parent == seq and part_of_recording(seq / q.name)), None)
+    inside = next((q for q in [target, *target.parents] if q.parent == seq and part_of_recording(q)), None)
     if same or inside is not None:
         where = "the recording folder itself" if same else f"inside the recording's {inside.name}/"
         raise InputError(f"--out {out} is {where}; write the run's files into a folder of their own, "
@@ -133,7 +132,7 @@ def require_tool_in_front(result: dict, handeye: str | Path) -> None:
                          "check that the file maps the arm's base into the camera (X_camera = R(rvec) X_base "
                          "+ tvec, tvec in millimetres), not the camera into the base, and that its key prefix "
                          "names the recorded arm (or K1 and D1 in camera_calibration.yaml, which project it)")
-    if n > 0 and result.get("frames_tip_in_front") == 0:
+    if n > 0 and front == 0:
         raise InputError(f"{handeye}: at this hand-eye the tool tip is behind the camera in all {n} tracked "
                          "frames, so nothing in view could be tracked; the file must map the arm's base into "
                          "the camera (X_camera = R(rvec) X_base + tvec, tvec in millimetres), not the camera "

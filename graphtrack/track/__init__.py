@@ -179,17 +179,19 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     t_wall = time.perf_counter()
     with TrajectoryWriter(out, extra_columns=extra) as writer:
         for item, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=ctx.stereo):
-            if not isinstance(item, FrameError):
-                item = pipe.check(item) or item
             if isinstance(item, FrameError):
                 run.skipped.skip(item, quiet)
                 continue
             frame = item
+            try:
+                est, det, obs, ms = pipe.step(frame)   # checks the frame first (Pipeline.check)
+            except FrameError as e:
+                run.skipped.skip(e, quiet)
+                continue
             if grey is None and pipe.needs_images and (
                     grey := _grey_markers(frame, ctx, options, rec.path / "robot.json")):
                 notes.append(grey)
                 warn(f"warning: {grey}", quiet)
-            est, det, obs, ms = pipe.step(frame)
             if not np.all(np.isfinite(est.E)):   # never a NaN pose row: the frame is skipped
                 run.skipped.skip(FrameError(frame.index, "nonfinite_estimate",
                                             "the estimator returned a non-finite pose"), quiet)

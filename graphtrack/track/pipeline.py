@@ -103,6 +103,7 @@ class Pipeline:
         self.ctx = ctx
         self.options = options
         self.last_stamp: float | None = None   # of the last frame stepped (stamps must increase)
+        self._joint_bounds = joint_bounds(ctx.robot, ctx.robot.n_dh)
         det = options.detection
         self.scale = det.scale or auto_detect_scale(ctx.camera.width)
         self.detect_camera = ctx.camera if self.scale == 1.0 else ctx.camera.scaled(self.scale)
@@ -255,8 +256,7 @@ class Pipeline:
         frames are checked: :func:`graphtrack.io.frame_checks.frame_problem`, and a stamp
         not after the last stepped frame's), or None."""
         robot, cam = self.ctx.robot, self.ctx.camera
-        problem = frame_problem(frame, robot.n_dh, (cam.height, cam.width), joint_bounds(robot, robot.n_dh),
-                                robot.has_gripper)
+        problem = frame_problem(frame, robot.n_dh, (cam.height, cam.width), self._joint_bounds, robot.has_gripper)
         if problem is None and not (np.isfinite(frame.stamp)
                                     and (self.last_stamp is None or frame.stamp > self.last_stamp)):
             problem = FrameError(frame.index, "stamp_order",
