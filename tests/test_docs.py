@@ -11,8 +11,10 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
+import os
 import re
 from pathlib import Path
 
@@ -163,6 +165,31 @@ def test_readme_python_snippet_runs(tmp_path, monkeypatch):
     code = code.replace('TrackOptions(estimator="smoother")', 'TrackOptions(estimator="smoother"), quiet=True, '
                                                               'progress=False')
     scope: dict = {}
-    exec(compile(code, "README.md", "exec"), scope)
+    with _threads_restored(monkeypatch):    # the snippet's limit_threads(1) stays inside it
+        exec(compile(code, "README.md", "exec"), scope)
     assert scope["E"].shape == (4, 4) and scope["metrics"]["frames_tracked"] == 5
     assert (tmp_path / "out" / "trajectory.csv").is_file()
+
+
+@contextlib.contextmanager
+def _threads_restored(monkeypatch):
+    """Run a block that calls limit_threads, then give torch, OpenCV, BLAS and the
+    environment back the thread counts they had (the rest of the suite keeps its own)."""
+    import cv2
+    import torch
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from graphtrack.threads import THREAD_ENV
+
+    for var in THREAD_ENV:
+        if var in os.environ:
+            monkeypatch.setenv(var, os.environ[var])
+        else:
+            monkeypatch.delenv(var, raising=False)
+    before = (torch.get_num_threads(), cv2.getNumThreads(), threadpool_info())
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before[0])
+        cv2.setNumThreads(before[1])
+        threadpool_limits({lib["prefix"]: lib["num_threads"] for lib in before[2]})
