@@ -114,3 +114,27 @@ def test_compare_plans_a_mono_stereo_axis(tmp_path):
     mono = StudyOptions(estimators=["smoother"], observations=["line-intensities"], views="mono")
     (cell,), _ = plan([str(tmp_path)], mono, tmp_path / "study2", names=["r"])
     assert cell.key == "smoother-line-intensities" and cell.track_options().stereo is False
+
+
+def test_swapped_left_and_right_images_are_refused(recordings, tmp_path):
+    """frames/ and frames_right/ exchanged: the smoother starts over on every other frame
+    (no pose explains both images), so the run exits 2 naming the left/right order; the
+    same images with --mono track with one start."""
+    import shutil
+
+    from graphtrack.errors import InputError
+
+    st, _ = recordings
+    sw = tmp_path / "swapped"
+    shutil.copytree(st, sw)
+    (sw / "frames").rename(sw / "left")
+    (sw / "frames_right").rename(sw / "frames")
+    (sw / "left").rename(sw / "frames_right")
+    with pytest.raises(InputError, match="which images are the left ones"):
+        track(sw, tmp_path / "s", TrackOptions(detection=CANNY), progress=False, quiet=True)
+    doc = json.loads((tmp_path / "s" / "metrics.json").read_text())   # written before the verdict
+    assert doc["estimator_report"]["adopted"] >= 4 and doc["frames_with_detections"] == 8
+    m = track(sw, tmp_path / "m", TrackOptions(detection=CANNY, stereo=False), progress=False, quiet=True)
+    assert m["estimator_report"]["adopted"] == 1 and m["recording_warnings"] == []
+    ok = track(st, tmp_path / "ok", TrackOptions(detection=CANNY), progress=False, quiet=True)
+    assert ok["estimator_report"]["adopted"] == 1 and ok["recording_warnings"] == []

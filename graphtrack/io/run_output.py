@@ -10,7 +10,10 @@
 - :func:`require_tracked`: a run that tracked no frame is an error (exit status 2)
   naming the skip reasons and the first skipped frame, never a silent exit 0;
   :func:`require_tool_in_front`: so is a run whose tool tip was behind the camera in
-  every frame, or far outside the image in every frame (naming handeye.yaml).
+  every frame, or far outside the image in every frame (naming handeye.yaml);
+  :func:`require_lock`: so is a run whose estimator re-started from a global search on
+  half or more of the frames with detections (:func:`lock_problem`: the warning from a
+  tenth).
 """
 from __future__ import annotations
 
@@ -144,3 +147,53 @@ def _frame_of(message: str) -> int:
         return int(message.split(":", 1)[0].split()[-1])
     except (ValueError, IndexError):
         return 1 << 62
+
+
+#: an estimator's starts (searches adopted, the first included) per frame with detections
+#: above which its lock is reported as not holding (warning) and the run refused (exit 2).
+#: On the 200 randomized tuning recordings (occlusions, the tool leaving the view) the
+#: smoother and the particle filter start at most twice in 90-150 frames (0.02);
+#: docs/decisions/plausible-inputs.md.
+LOCK_WARN, LOCK_REFUSE = 0.1, 0.5
+#: fewer starts than this are never reported: a start-up and a re-acquisition or two
+LOCK_MIN_STARTS = 3
+
+
+def lock_starts(result: dict) -> tuple[int, int]:
+    """(starts, frames with detections) of a run's metrics: the searches its estimator adopted
+    (``estimator_report`` ``adopted``; the batch's online smoother's), 0 without a search."""
+    report = result.get("estimator_report") or {}
+    report = report.get("online", report)
+    starts = report.get("adopted") if isinstance(report, dict) else None
+    return (int(starts) if isinstance(starts, (int, float)) else 0), int(result.get("frames_with_detections") or 0)
+
+
+def lock_problem(result: dict, recording: str | Path) -> str | None:
+    """The warning for a run whose estimator started over from a global search on more than
+    LOCK_WARN of its frames with detections (at least LOCK_MIN_STARTS times), None otherwise:
+    no pose near the hand-eye prior explained the images from one frame to the next (a
+    camera, hand-eye, tool or stereo calibration that does not describe the recording)."""
+    starts, n = lock_starts(result)
+    if starts < LOCK_MIN_STARTS or starts <= LOCK_WARN * n:
+        return None
+    text = (f"{recording}: the estimator started over from a global search {starts} times in {n} frames with "
+            f"detections (a lock that holds starts once or twice per recording): no pose near the hand-eye "
+            f"prior explains the images from one frame to the next, so the estimates are not to be trusted; "
+            f"check camera_calibration.yaml (K1, D1), handeye.yaml and robot.json's tool")
+    if result.get("stereo"):
+        text += ("; with both images: if --mono tracks steadily, camera_calibration.yaml's R and T, or which "
+                 "images are the left ones (frames/ and frames_right/, or the image topics), are wrong")
+    return text
+
+
+def lock_refused(result: dict) -> bool:
+    """The estimator started over on at least LOCK_REFUSE of the frames with detections."""
+    starts, n = lock_starts(result)
+    return starts >= LOCK_MIN_STARTS and starts >= LOCK_REFUSE * n
+
+
+def require_lock(result: dict, recording: str | Path) -> None:
+    """InputError with :func:`lock_problem`'s text when :func:`lock_refused`: nothing was
+    tracked from one frame to the next."""
+    if lock_refused(result):
+        raise InputError(f"nothing was tracked from frame to frame: {lock_problem(result, recording)}")

@@ -30,8 +30,8 @@ from graphtrack.eval.overlay import OverlayWriter
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
-from graphtrack.io.run_output import (outside_recording, prepare_run_dir, require_tool_in_front, require_tracked,
-                                     write_json)
+from graphtrack.io.run_output import (lock_problem, lock_refused, outside_recording, prepare_run_dir,
+                                      require_lock, require_tool_in_front, require_tracked, write_json)
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
 from graphtrack.io.topics import TopicSelection
@@ -220,6 +220,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     require_tracked(result, out)   # no tracked frame: an error, never a silent success
     require_tool_in_front(result, Path(path) / "handeye.yaml")
+    require_lock(result, path)
     return result
 
 
@@ -244,6 +245,7 @@ def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: Tracki
     result.update(run.summary(wall))
     result["estimator_report"] = pipe.estimator.report()
     if pipe.needs_images:
+        result["frames_with_detections"] = int(sum(run.informative))
         result["no_detection_stretches"] = stretches = no_detection_stretches(run.frames, run.informative)
         for a, b in stretches:
             warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
@@ -254,6 +256,9 @@ def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: Tracki
                         f"{rec.path / 'handeye.yaml'}, K1 and D1 in camera_calibration.yaml and robot.json's "
                         "tool_tip")
         warn(f"warning: {warnings[-1]}", quiet)
+    if unsteady := lock_problem(result, path):
+        warnings.append(unsteady)
+        warn(f"warning: {unsteady}", quiet or lock_refused(result))   # refused: said once, as the error
     result["recording_warnings"] = capped(warnings)
     return result
 
