@@ -78,3 +78,42 @@ def test_a_missing_jaw_topic_is_named_as_this_arm_and_version_call_it(psm2_dvrk2
     assert main(["track", str(seq), "--out", str(tmp_path / "o"), "--estimator", "kinematics", "--quiet"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no messages on /PSM2/jaw/measured_js" in err[0] and "PSM1" not in err[0], err
+
+
+def test_joint_messages_are_read_by_their_names(psm2_dvrk2, tmp_path):
+    """A JointState whose name[] lists the PSM's joints in another order (a republished
+    /joint_states) is read in DH order: the same joint readings as the unnamed bag's."""
+    from graphtrack.io.joint_names import DVRK_PSM_JOINTS
+
+    frames = [f for f in open_recording(psm2_dvrk2).frames() if not isinstance(f, FrameError)][:5]
+    seq = tmp_path / "named"
+    shutil.copytree(psm2_dvrk2, seq, ignore=shutil.ignore_patterns("*.bag"))
+    names = [DVRK_PSM_JOINTS[i] for i in (3, 0, 5, 1, 2, 4)]
+    write_bag(seq / "psm2.bag", frames, compressed=True, image_format="jpeg", arm="PSM2", dvrk_version=2,
+              joint_names=names)
+    got = [f for f in open_recording(seq).frames() if not isinstance(f, FrameError)]
+    assert len(got) == 5
+    for a, b in zip(frames, got):
+        assert list(b.joints) == list(a.joints) and b.jaw == a.jaw
+
+
+def test_joint_messages_with_another_arms_names_are_refused(psm2_dvrk2, tmp_path, monkeypatch, capsys):
+    """Names in DH order read in place; half of the PSM's names (an ECM's topic) exit 2 naming the topic."""
+    from graphtrack.io import bag_write
+    from graphtrack.io.joint_names import DVRK_PSM_JOINTS
+
+    frames = [f for f in open_recording(psm2_dvrk2).frames() if not isinstance(f, FrameError)][:3]
+    seqs = {}
+    for kind in ("in-order", "three-names"):
+        seqs[kind] = seq = tmp_path / kind
+        shutil.copytree(psm2_dvrk2, seq, ignore=shutil.ignore_patterns("*.bag"))
+        if kind == "three-names":   # the arm joints' names only: an ECM-like message
+            real = bag_write._joint_state
+            monkeypatch.setattr(bag_write, "_joint_state",
+                                lambda T, hdr, position, names=(): real(T, hdr, position, list(names)[:3]))
+        write_bag(seq / "psm2.bag", frames, compressed=True, image_format="jpeg", arm="PSM2", dvrk_version=2,
+                  joint_names=list(DVRK_PSM_JOINTS))
+    got = [list(f.joints) for f in open_recording(seqs["in-order"]).frames()]
+    assert got == [list(f.joints) for f in frames]
+    assert main(["track", str(seqs["three-names"]), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "/PSM2/measured_js: a joint message holds 3 of the dVRK PSM's 6" in capsys.readouterr().err

@@ -47,6 +47,7 @@ from graphtrack.errors import FrameError, InputError
 from graphtrack.io.bag1scan import Bag1Scan
 from graphtrack.io.bag_stamps import JointTable, header_ns, raw_header_ns
 from graphtrack.io.frame import Frame
+from graphtrack.io.joint_names import in_dh_order
 from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE, decode_image, noise_span
 from graphtrack.io.topics import IMAGE_TOPICS, RIGHT_IMAGE_TOPICS, TopicSelection, resolve_right, resolve_topics
 
@@ -129,7 +130,7 @@ class BagSource:
         for conn, t, raw in scan.messages():
             counts.setdefault(conn.topic, [conn.msgtype, 0])[1] += 1
             if conn.msgtype == JOINT_TYPE:
-                self._add_joint(joints.setdefault(conn.topic, ([], [])), store.deserialize_ros1, raw,
+                self._add_joint(joints.setdefault(conn.topic, ([], [], [])), store.deserialize_ros1, raw,
                                 conn.msgtype, t)
             elif conn.msgtype in (IMAGE_TYPE, COMPRESSED_TYPE):
                 ns = raw_header_ns(raw, False) if len(raw) >= 12 else 0
@@ -168,9 +169,9 @@ class BagSource:
                 self.right_topic, self.right_type = topic, topics[topic][0]
                 self.warnings += [note] if note else []
         if self.scan:
-            empty = ([], [])
-            self._table = (JointTable.build(*self._scan_joints.get(self.joint_topic, empty)),
-                           JointTable.build(*self._scan_joints.get(self.jaw_topic, empty)))
+            empty = ([], [], [])
+            self._table = self._tables(self._scan_joints.get(self.joint_topic, empty),
+                                       self._scan_joints.get(self.jaw_topic, empty))
             # images stamped after the last surviving joint (jaw) reading lost the readings
             # that sync them: the recording ends before them
             stamps = np.asarray(self._scan_stamps.get(self.image_topic, []), dtype=np.int64)
@@ -187,7 +188,7 @@ class BagSource:
         return int(self.n_images)
 
     # -- pass 1: joints -----------------------------------------------------------------
-    def _add_joint(self, acc: tuple[list, list], deser, raw, msgtype, t_ns) -> None:
+    def _add_joint(self, acc: tuple[list, list, list], deser, raw, msgtype, t_ns) -> None:
         try:
             msg = deser(raw, msgtype)
         except Exception:  # noqa: BLE001 - one undecodable reading: the nearest other one is used
@@ -195,11 +196,12 @@ class BagSource:
             return
         acc[0].append(header_ns(msg, t_ns))
         acc[1].append(np.asarray(msg.position, dtype=float).ravel())
+        acc[2].append(tuple(getattr(msg, "name", None) or ()))
 
     def joint_tables(self) -> tuple[JointTable, JointTable]:
         """(joints, jaw) tables, read on first use (pass 1)."""
         if self._table is None:
-            acc = {self.joint_topic: ([], []), self.jaw_topic: ([], [])}
+            acc = {self.joint_topic: ([], [], []), self.jaw_topic: ([], [], [])}
             try:
                 with self._reader() as r:
                     conns = [c for c in r.connections if c.topic in acc]
@@ -210,9 +212,16 @@ class BagSource:
             except Exception as e:  # noqa: BLE001
                 raise InputError(f"{self.path}: damaged bag data while reading {self.joint_topic} "
                                  f"({_one_line(e)})") from None
-            self._table = (JointTable.build(*acc[self.joint_topic]), JointTable.build(*acc[self.jaw_topic]))
+            self._table = self._tables(acc[self.joint_topic], acc[self.jaw_topic])
         self._check_jaw(self._table[1])
         return self._table
+
+    def _tables(self, joints: tuple[list, list, list], jaw: tuple[list, list, list]) -> tuple[JointTable, JointTable]:
+        """(joints, jaw) tables of the accumulated (stamps, values, names); the joints' values in
+        DH order by their names (:mod:`graphtrack.io.joint_names`)."""
+        stamps, values, names = joints
+        values = in_dh_order(values, names, f"{self.path}: {self.joint_topic}")
+        return JointTable.build(stamps, values), JointTable.build(*jaw[:2])
 
     def _stale(self, joints: JointTable, jaw: JointTable, stamp_ns: int) -> str | None:
         """Why the frame stamped ``stamp_ns`` has no usable joint (or, with a jaw topic,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -15,11 +15,13 @@ from graphtrack.io.bag import (COMPRESSED_TOPIC, IMAGE_TOPIC, JOINT_TYPE, RIGHT_
                                RIGHT_IMAGE_TOPIC)
 from graphtrack.io.bag_stamps import to_ns
 from graphtrack.io.image_msg import COMPRESSED_TYPE, IMAGE_TYPE
+from graphtrack.io.joint_names import DVRK_PSM_JOINTS
 from graphtrack.io.topics import jaw_topics, joint_topics
 
 
 def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, image_format: str = "png",
-              arm: str = "PSM1", chunk_compression: str | None = None, dvrk_version: int = 1) -> int:
+              arm: str = "PSM1", chunk_compression: str | None = None, dvrk_version: int = 1,
+              joint_names: Sequence[str] | None = None) -> int:
     """Write a ROS 1 bag in the sequence format, streaming (one frame in memory at a time).
 
     Parameters
@@ -34,6 +36,9 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
     arm, dvrk_version : the joint and jaw topics: ``/dvrk/<arm>/state_joint_current`` and
         ``/dvrk/<arm>/state_jaw_current`` (1), or ``/<arm>/measured_js`` and
         ``/<arm>/jaw/measured_js`` (2).
+    joint_names : the joint messages' ``name[]``, each a dVRK PSM joint name
+        (:data:`graphtrack.io.joint_names.DVRK_PSM_JOINTS`) in any order, the values
+        written in that order; None: no names, the values in DH order.
 
     Every message's header stamp and bag record time is the frame's stamp.
     Returns the number of frames written.
@@ -41,6 +46,8 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
     if dvrk_version not in (1, 2):
         raise ValueError(f"dvrk_version must be 1 or 2, got {dvrk_version!r}")
     joint_topic, jaw_topic = joint_topics(arm)[dvrk_version - 1], jaw_topics(arm)[dvrk_version - 1]
+    names = list(joint_names or [])
+    order = [DVRK_PSM_JOINTS.index(n) for n in names]   # ValueError for a name the PSM has not
     if image_format not in ("png", "jpeg", "jpg"):
         raise ValueError(f"image_format must be png or jpeg, got {image_format!r}")
     ts = get_typestore(Stores.ROS1_NOETIC)
@@ -70,7 +77,7 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
                                                     img_type, typestore=ts)
                 hdr_r = T["std_msgs/msg/Header"](seq=n, stamp=hdr.stamp, frame_id="right")
                 writer.write(c_right, t, ts.serialize_ros1(_image_msg(T, hdr_r, right, compressed, ext, n), img_type))
-            writer.write(c_joint, t, ts.serialize_ros1(_joint_state(T, hdr, f.joints), JOINT_TYPE))
+            writer.write(c_joint, t, ts.serialize_ros1(_joint_state(T, hdr, np.asarray(f.joints)[order] if names else f.joints, names), JOINT_TYPE))
             jaw = float(getattr(f, "jaw", float("nan")))
             if math.isfinite(jaw):
                 if c_jaw is None:
@@ -94,7 +101,7 @@ def _image_msg(T, hdr, image, compressed: bool, ext: str, n: int):
                          step=img.shape[1] * (1 if mono else 3), data=data.ravel())
 
 
-def _joint_state(T, hdr, position) -> object:
+def _joint_state(T, hdr, position, names=()) -> object:
     empty = np.zeros(0, dtype=np.float64)
-    return T[JOINT_TYPE](header=hdr, name=[], position=np.asarray(position, dtype=np.float64).ravel(),
+    return T[JOINT_TYPE](header=hdr, name=list(names), position=np.asarray(position, dtype=np.float64).ravel(),
                          velocity=empty, effort=empty)
