@@ -186,6 +186,28 @@ def test_bag_right_matched_by_stamp_not_order(tmp_path):
     assert rec.right_skips["missing"] == 1
 
 
+@pytest.mark.parametrize("offset_ms, shift", [(12.0, 0), (-16.0, 0), (17.5, 1)])
+def test_bag_right_paired_within_half_a_period(tmp_path, offset_ms, shift):
+    """Two free-running cameras at 30 frames/s are up to 16.7 ms apart: a left image takes the
+    right image nearest in time within half the right stream's period (17.5 ms after left k
+    is 15.8 ms before left k + 1: that frame's pair; left 0 has none)."""
+    from graphtrack.io import bag
+
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(True), n=5)
+    lefts = [NS(stamp=f.stamp, image=f.image, joints=f.joints, jaw=f.jaw) for f in frames]
+    rights = [NS(stamp=f.stamp + offset_ms / 1e3, image=f.image_right, joints=f.joints, jaw=f.jaw)
+              for f in frames]
+    write_bag(tmp_path / "l.bag", lefts)
+    write_bag(tmp_path / "r.bag", rights)
+    _merge_bags(tmp_path / "l.bag", tmp_path / "r.bag", seq / "s.bag", bag.IMAGE_TOPIC, bag.RIGHT_IMAGE_TOPIC)
+    rec = open_recording(seq, **NO_ROBOT)
+    out = list(rec.frames())
+    assert rec.right_skips["missing"] == shift
+    for f in out[shift:]:
+        np.testing.assert_array_equal(f.image_right, frames[f.index - shift].image_right)
+
+
 def _merge_bags(left, right, out, left_topic, right_topic, left_as=None):
     """Left bag as is (its image topic renamed to ``left_as`` if given) + the right bag's
     image messages renamed to the right topic."""

@@ -138,3 +138,10 @@ def test_swapped_left_and_right_images_are_refused(recordings, tmp_path):
     assert m["estimator_report"]["adopted"] == 1 and m["recording_warnings"] == []
     ok = track(st, tmp_path / "ok", TrackOptions(detection=CANNY), progress=False, quiet=True)
     assert ok["estimator_report"]["adopted"] == 1 and ok["recording_warnings"] == []
+
+
+def test_kinematics_on_a_stereo_recording_uses_neither_image(recordings, tmp_path):
+    st, _ = recordings
+    m = track(st, tmp_path / "k", TrackOptions(estimator="kinematics"), progress=False, quiet=True)
+    assert m["stereo"] is False and m["frames_left_only"] == 0
+    assert sum(m["right_skipped_reasons"].values()) == 0        # the right images were not read

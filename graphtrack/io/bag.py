@@ -17,8 +17,10 @@ by :mod:`graphtrack.io.image_msg`):
    not recorded then, or stamped on another clock).
    Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
    alongside, in bag order, with a small look-ahead; a left image takes the right
-   image whose header stamp is nearest its own if they differ by at most
-   ``RIGHT_SYNC_S`` (left and right stamps must increase in bag order). A left
+   image whose header stamp is nearest its own if they differ by at most half the
+   right images' median period (two free-running cameras at 30 frames/s are up to
+   16.7 ms apart), or ``RIGHT_SYNC_S`` if that is more (left and right stamps must
+   increase in bag order). A left
    image without one (missing, or not decodable) gets ``image_right`` None and
    is counted in ``BagSource.right_skips``.
 
@@ -54,7 +56,8 @@ from graphtrack.io.topics import IMAGE_TOPICS, RIGHT_IMAGE_TOPICS, TopicSelectio
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
 RIGHT_IMAGE_TOPIC, RIGHT_COMPRESSED_TOPIC = RIGHT_IMAGE_TOPICS
 JOINT_TYPE = "sensor_msgs/msg/JointState"
-RIGHT_SYNC_S = 0.010  #: s, the largest left-right stamp difference of a stereo pair
+#: s, the least largest left-right stamp difference of a stereo pair (module doc: half a period, if more)
+RIGHT_SYNC_S = 0.010
 #: s, the farthest a frame's nearest joint (jaw) reading may be from its image's stamp,
 #: or 3 median reading periods when that is more (dVRK joint states come at 100 Hz or
 #: more); farther, the frame is skipped as no_joint_reading
@@ -330,7 +333,15 @@ class _RightMatcher:
 
     def __init__(self, source: BagSource, messages):
         self.src, self.it, self.buf, self.done = source, messages, [], False
+        self.recent: list[int] = []    # the last right stamps pulled (ns), for their period
         self.tol = int(RIGHT_SYNC_S * 1e9)
+
+    def _tolerance(self) -> int:
+        """ns: half the median period of the right stamps pulled so far, RIGHT_SYNC_S at least."""
+        steps = np.diff(self.recent)
+        steps = steps[steps > 0]
+        half = int(np.median(steps) // 2) if steps.size else 0
+        return max(int(RIGHT_SYNC_S * 1e9), half)
 
     def _pull(self) -> None:
         try:
@@ -349,11 +360,13 @@ class _RightMatcher:
         except Exception:  # noqa: BLE001 - decoded below as corrupt
             msg = None
         self.buf.append((ns or t, msg))
+        self.recent = self.recent[-15:] + [ns or t]
+        self.tol = self._tolerance()
 
     def image(self, t_ns: int):
         """The decoded right image for left stamp t_ns, or None (counted in right_skips)."""
-        while not self.done and (not self.buf or self.buf[-1][0] <= t_ns + self.tol):
-            self._pull()
+        while not self.done and (not self.buf or self.buf[-1][0] <= t_ns + self.tol or len(self.recent) < 2):
+            self._pull()   # up to the first beyond the tolerance, and two for a period
         while self.buf and self.buf[0][0] < t_ns - self.tol:
             self.buf.pop(0)
         best = min(range(len(self.buf)), key=lambda k: abs(self.buf[k][0] - t_ns), default=None)

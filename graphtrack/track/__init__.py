@@ -178,7 +178,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
                disable=quiet) if progress else None
     t_wall = time.perf_counter()
     with TrajectoryWriter(out, extra_columns=extra) as writer:
-        for item, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=ctx.stereo):
+        for item, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=ctx.stereo and pipe.needs_images):
             if isinstance(item, FrameError):
                 run.skipped.skip(item, quiet)
                 continue
@@ -241,7 +241,7 @@ def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: Tracki
              run: RunLog, wall: float, notes: list[str], quiet: bool) -> dict:
     """metrics.json's content for a finished run (:func:`_result`, the run's summary, the
     estimator's report, the stretches without detections, the warnings kept)."""
-    result = _result(path, out, options, rec, ctx, run, pipe.left_only)
+    result = _result(path, out, options, rec, ctx, run, pipe.left_only, pipe.needs_images)
     result.update(run.summary(wall))
     result["estimator_report"] = pipe.estimator.report()
     if pipe.needs_images:
@@ -274,7 +274,7 @@ def capped(lines: list[str]) -> list[str]:
 
 
 def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: TrackingContext, run: RunLog,
-            left_only: int = 0) -> dict:
+            left_only: int = 0, images: bool = True) -> dict:
     """metrics.json's run description, skip counts, tip metrics (labels.csv; with
     labels_right.csv the right-image and triangulated 3-D ones) and truth metrics (truth.csv)."""
     result = {"estimator": options.estimator, "observation": options.observation,
@@ -282,8 +282,10 @@ def _result(path, out: Path, options: TrackOptions, rec: Recording, ctx: Trackin
               "skipped_reasons": dict(run.skipped), "frames_skipped": int(sum(run.skipped.values())),
               "frames_total": run.read, "skip_examples": run.skipped.examples}
     if rec.stereo:
-        # both images used in at least one frame (not when every right image was unusable)
-        result.update(stereo=bool(ctx.stereo) and left_only < len(run.frames), frames_left_only=int(left_only),
+        # both images used in at least one frame (not when every right image was unusable, nor
+        # by an estimator without images: kinematics)
+        result.update(stereo=bool(ctx.stereo) and images and left_only < len(run.frames),
+                      frames_left_only=int(left_only),
                       right_skipped_reasons={k: int(v) for k, v in rec.right_skips.items()})
     tips = np.asarray(run.tips, dtype=float).reshape(-1, 2)
     if rec.robot.tool_tip is not None:   # where the estimates put the tip (require_tool_in_front)
