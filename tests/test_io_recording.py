@@ -236,16 +236,9 @@ def test_sync_tie_takes_earlier_and_zero_stamp_uses_record_time(tmp_path):
 # -- ROS 2 ----------------------------------------------------------------------------------
 @pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
 def test_ros2_bag(tmp_path, storage):
-    ts = typestore(ros2=True)
     frames = make_frames(5)
-    msgs = []
-    for f in frames:
-        t = int(round(f.stamp * 1e9))
-        msgs += [(IMAGE_TOPIC, "sensor_msgs/msg/Image", t, image_msg(ts, t, f.image, "bgr8", True)),
-                 (JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, f.joints, True)),
-                 (JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, [f.jaw], True))]
     seq = write_meta(tmp_path / "seq")
-    write_custom_bag(seq / "rec2", msgs, ros2=True, storage=storage)
+    write_custom_bag(seq / "rec2", _ros2_messages(frames), ros2=True, storage=storage)
     rec = open_recording(seq, **NO_ROBOT)
     assert rec.kind == "ros2" and len(rec) == 5
     for f, ref in zip(ok_frames(items(rec)), frames):
@@ -253,6 +246,64 @@ def test_ros2_bag(tmp_path, storage):
         np.testing.assert_array_equal(f.joints, ref.joints)
         assert f.jaw == ref.jaw
     np.testing.assert_allclose(rec.stamps, [f.stamp for f in frames], atol=1e-6, rtol=0)
+
+
+def _ros2_messages(frames, image_topic=IMAGE_TOPIC):
+    ts = typestore(ros2=True)
+    msgs = []
+    for f in frames:
+        t = int(round(f.stamp * 1e9))
+        if image_topic == COMPRESSED_TOPIC:
+            data = np.frombuffer(cv2.imencode(".png", f.image)[1].tobytes(), np.uint8)
+            img = ts.types["sensor_msgs/msg/CompressedImage"](header=msg_header(ts, t, True), format="png",
+                                                              data=data)
+            msgs.append((image_topic, "sensor_msgs/msg/CompressedImage", t, img))
+        else:
+            msgs.append((image_topic, "sensor_msgs/msg/Image", t, image_msg(ts, t, f.image, "bgr8", True)))
+        msgs += [(JOINTS, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, f.joints, True)),
+                 (JAW, "sensor_msgs/msg/JointState", t, joint_msg(ts, t, [f.jaw], True))]
+    return msgs
+
+
+def test_the_sequence_folder_may_be_the_ros2_bag(tmp_path):
+    """`ros2 bag record -o SEQ`, then robot.json, camera_calibration.yaml and handeye.yaml added to SEQ."""
+    frames = make_frames(3)
+    write_custom_bag(tmp_path / "seq", _ros2_messages(frames), ros2=True)
+    seq = write_meta(tmp_path / "seq")
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.kind == "ros2" and len(rec) == 3
+    assert [f.joints.tolist() for f in ok_frames(items(rec))] == [f.joints.tolist() for f in frames]
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_ros2_storage_without_metadata_names_reindex(tmp_path, storage):
+    """A killed `ros2 bag record` leaves its storage file without metadata.yaml."""
+    seq = write_meta(tmp_path / "seq")
+    write_custom_bag(seq / "rosbag2", _ros2_messages(make_frames(2)), ros2=True, storage=storage)
+    (seq / "rosbag2" / "metadata.yaml").unlink()
+    with pytest.raises(InputError, match=r"rosbag2: ROS 2 bag storage \(rosbag2.*\) without metadata.yaml") as e:
+        open_recording(seq, **NO_ROBOT)
+    assert f"ros2 bag reindex {seq / 'rosbag2'}" in str(e.value)
+
+
+def test_an_empty_raw_image_topic_falls_back_to_the_compressed_one(tmp_path):
+    """The raw topic advertised (a connection without messages), the images on .../compressed."""
+    from rosbags.rosbag2 import Writer
+
+    frames = make_frames(3)
+    seq = write_meta(tmp_path / "seq")
+    ts = typestore(ros2=True)
+    with Writer(seq / "rec2", version=9) as w:
+        w.add_connection(IMAGE_TOPIC, "sensor_msgs/msg/Image", typestore=ts)
+        conns = {}
+        for topic, msgtype, t, msg in _ros2_messages(frames, COMPRESSED_TOPIC):
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, msgtype, typestore=ts)
+            w.write(conns[topic], t, ts.serialize_cdr(msg, msgtype))
+    rec = open_recording(seq, **NO_ROBOT)
+    assert rec.source.image_topic == COMPRESSED_TOPIC and len(rec) == 3
+    for f, ref in zip(ok_frames(items(rec)), frames):
+        np.testing.assert_array_equal(f.image, ref.image)
 
 
 # -- streaming --------------------------------------------------------------------------------

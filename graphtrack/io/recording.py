@@ -215,6 +215,8 @@ def find_source(path: Path, topics: TopicSelection = TopicSelection()) -> tuple[
     """Pick the recording in a sequence folder: exactly one bag, else the folder form."""
     bags = sorted(p for p in path.iterdir() if p.suffix == ".bag" and p.is_file())
     bags += sorted(p for p in path.iterdir() if is_ros2_bag(p))
+    if not bags and is_ros2_bag(path):   # `ros2 bag record -o SEQ`, the other files added beside it
+        bags = [path]
     if not bags:  # a recording killed before rosbag renamed it: salvaged by scanning
         bags = sorted(p for p in path.glob("*.bag.active") if p.is_file())
     folder_form = (path / "frames").is_dir() or (path / "video.mp4").is_file()
@@ -228,6 +230,7 @@ def find_source(path: Path, topics: TopicSelection = TopicSelection()) -> tuple[
             notes.append(f"{path}: {len(bags)} bags; using the folder form (frames/ or video.mp4)")
         return FolderSource(path), notes
     if not bags:
+        _no_metadata(path)
         raise InputError(f"{path}: no recording: no .bag file (nor ROS 2 bag folder) and no "
                          "frames/ or video.mp4 with joints.csv")
     raise InputError(f"{path}: {len(bags)} bags ({', '.join(b.name for b in bags)}); "
@@ -287,6 +290,17 @@ def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | No
                     notes=notes, labels_right=labels_r)
     rec.notes += consistency_notes(rec)
     return rec
+
+
+def _no_metadata(path: Path) -> None:
+    """InputError naming a ROS 2 bag's storage (.db3, .mcap) in ``path`` or a folder of it
+    without its metadata.yaml: what a killed ``ros2 bag record`` leaves."""
+    for folder in [path, *sorted(p for p in path.iterdir() if p.is_dir())]:
+        storage = sorted(q.name for q in folder.iterdir() if q.suffix in (".db3", ".mcap") and q.is_file())
+        if storage and not (folder / "metadata.yaml").exists():
+            raise InputError(f"{folder}: ROS 2 bag storage ({', '.join(storage[:3])}) without metadata.yaml, "
+                             f"which `ros2 bag record` writes when it stops (was it killed?): rebuild it with "
+                             f"`ros2 bag reindex {folder}`")
 
 
 def is_ros2_bag(folder: Path) -> bool:

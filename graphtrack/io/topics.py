@@ -100,10 +100,16 @@ def resolve_topics(available: dict[str, tuple[str, int]], sel: TopicSelection, w
             raise InputError(f"{where}: joint topics of several arms ({', '.join(found)}); "
                              "choose one with --arm")
         arm = found[0] if found else DEFAULT_ARM
-    image = sel.image or next((t for t in IMAGE_TOPICS if t in available), None)
+    # the raw topic, else the compressed one: the first that holds messages (a recorder may
+    # advertise both and publish one)
+    image = sel.image or next((t for t in IMAGE_TOPICS if t in present), None) or next(
+        (t for t in IMAGE_TOPICS if t in available), None)
     if image is None or image not in available:
         raise InputError(f"{where}: no left image topic ({sel.image or ' or '.join(IMAGE_TOPICS)}); "
                          f"topics: {', '.join(sorted(available)) or 'none'}; name it with --image-topic")
+    if image not in present:
+        raise InputError(f"{where}: the left image topic {image} holds no messages; topics with messages: "
+                         f"{', '.join(sorted(present)) or 'none'}; name another with --image-topic")
     naming = 1 if joint_topics(arm)[1] in present and joint_topics(arm)[0] not in present else 0
     joint = sel.joint or joint_topics(arm)[naming]
     if joint not in present:
