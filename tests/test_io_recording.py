@@ -373,15 +373,27 @@ def test_bag_truncated_before_any_frame(tmp_path):
 
 
 def test_damaged_chunk_in_indexed_bag(tmp_path):
-    seq = write_meta(tmp_path / "seq", h=96, w=128)
-    write_bag(seq / "rec.bag", make_frames(30, h=96, w=128), chunk_compression="bz2")
-    data = bytearray((seq / "rec.bag").read_bytes())
-    mid = len(data) // 2
-    data[mid:mid + 64] = bytes(64)  # bz2 checks CRCs: this chunk no longer decompresses
-    (seq / "rec.bag").write_bytes(bytes(data))
-    rec = open_recording(seq, **NO_ROBOT)  # the index is intact: opening is fine
-    with pytest.raises(InputError, match=r"rec\.bag: damaged bag data"):
-        items(rec)
+    """A chunk near the end that does not decompress: the frames before it are read, as from
+    a truncated bag, with the last good frame named; one in the first chunk leaves none."""
+    frames = make_frames(60, h=96, w=128)
+    for where, left in ((0.85, True), (0.05, False)):
+        seq = write_meta(tmp_path / f"seq{where}", h=96, w=128)
+        write_bag(seq / "rec.bag", frames, chunk_compression="bz2")
+        data = bytearray((seq / "rec.bag").read_bytes())
+        at = int(len(data) * where)
+        data[at:at + 64] = bytes(64)  # bz2 checks CRCs: this chunk no longer decompresses
+        (seq / "rec.bag").write_bytes(bytes(data))
+        rec = open_recording(seq, **NO_ROBOT)  # the index is intact: opening is fine
+        if not left:
+            with pytest.raises(InputError, match=r"rec\.bag: bag index unusable .*no complete left image"):
+                items(rec)
+            continue
+        out = ok_frames(items(rec))            # the joint pass meets the damage: read up to it
+        assert rec.truncated and 0 < len(out) < 60 and len(rec) == len(out)
+        assert [f.index for f in out] == list(range(len(out)))
+        for f in out:
+            np.testing.assert_array_equal(f.image, frames[f.index].image)
+        assert f"(the last good frame is {len(out) - 1})" in rec.warnings[-1]
 
 
 @pytest.mark.parametrize("content", [b"", b"garbage, not a bag at all" * 10])

@@ -31,10 +31,11 @@ Truncated ROS 1 bags: a bag whose index is missing or damaged (recording
 killed, disk full, partial copy, ``.bag.active``) is read by a linear scan of its
 records (:mod:`graphtrack.io.bag1scan`): every complete message before the
 damage is used, ``BagSource.truncated`` is True and ``BagSource.warnings`` says
-so. Damage inside an indexed bag (a chunk that does not decompress) raises
-InputError naming the bag: during the joint pass, before any frame, or, if
-only image data is damaged, after the frames before it were yielded ("unreadable
-after frame k"); frame numbers are never shifted silently.
+so. Damage inside an indexed ROS 1 bag (a chunk that does not decompress, a
+malformed record) met by the joint pass, before any frame, is read the same way,
+up to the damage; met later, in image data only, it raises InputError naming the
+bag after the frames before it were yielded ("unreadable after frame k"); frame
+numbers are never shifted silently. A damaged ROS 2 bag raises InputError.
 """
 from __future__ import annotations
 
@@ -213,8 +214,13 @@ class BagSource:
             except InputError:
                 raise
             except Exception as e:  # noqa: BLE001
-                raise InputError(f"{self.path}: damaged bag data while reading {self.joint_topic} "
-                                 f"({_one_line(e)})") from None
+                if self.ros2 or not self._has_ros1_magic():
+                    raise InputError(f"{self.path}: damaged bag data while reading {self.joint_topic} "
+                                     f"({_one_line(e)})") from None
+                # a damaged chunk of an indexed ROS 1 bag: read up to it as a truncated bag is
+                self.scan = True
+                self._choose_topics(self._scan_topics(e))
+                return self.joint_tables()
             self._table = self._tables(acc[self.joint_topic], acc[self.jaw_topic])
         self._check_jaw(self._table[1])
         return self._table

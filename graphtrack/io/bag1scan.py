@@ -181,6 +181,8 @@ class Bag1Scan:
                     # a partial chunk ends the file; a clean chunk must parse completely
                     self.truncated = self.truncated or was_truncated
                     self.stop_reason = reason or self.stop_reason
+                    if self.truncated:   # a chunk that did not decompress or parse: nothing after it
+                        return           # may be read, or later messages would take its frames' numbers
             except (KeyError, struct.error, ValueError, UnicodeDecodeError) as e:
                 self.truncated, self.stop_reason = True, f"malformed record ({e})"
                 return
