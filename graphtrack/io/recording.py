@@ -234,7 +234,8 @@ def find_source(path: Path, topics: TopicSelection = TopicSelection()) -> tuple[
         raise InputError(f"{path}: no recording: no .bag file (nor ROS 2 bag folder) and no "
                          "frames/ or video.mp4 with joints.csv")
     raise InputError(f"{path}: {len(bags)} bags ({', '.join(b.name for b in bags)}); "
-                     "a sequence holds exactly one")
+                     "a sequence holds exactly one (parts of a `rosbag record --split` recording? merge them "
+                     "into one bag, or track each part in a sequence folder of its own)")
 
 
 def open_recording(path: str | Path, robot_loader: Callable[[Path], object] | None = None,
