@@ -694,3 +694,10 @@ def test_jaw_readings_for_a_robot_without_gripper_are_noted(tmp_path):
     assert [w for w in rec.warnings if "jaw" in w] == [
         f"{seq}: the recording has jaw readings but {seq / 'robot.json'} has no has_gripper: the jaw is ignored "
         "(a tool with jaws needs \"has_gripper\": true, or its tip is placed as if they were closed)"]
+
+
+def test_two_bags_name_a_split_recording(tmp_path):
+    seq = bag_seq(tmp_path, name="rec_0.bag")
+    write_bag(seq / "rec_1.bag", make_frames(2))
+    with pytest.raises(InputError, match=r"2 bags \(rec_0\.bag, rec_1\.bag\); .*--split"):
+        open_recording(seq, **NO_ROBOT)
