@@ -31,6 +31,42 @@ def test_track_writes_overlay_with_one_frame_per_tracked_frame(rec, tmp_path):
     cap.release()
 
 
+def test_refine_video_draws_the_refined_poses(rec, tmp_path, monkeypatch):
+    """batch: the video's frames carry the poses trajectory.csv ends with (the refined ones),
+    drawn in a second pass; the streamed video is what an interrupted run keeps."""
+    from graphtrack.io.trajectory import read_trajectory
+    from graphtrack.track import TrackOptions, overlay_run, track
+
+    drawn: dict[str, list] = {}
+
+    class Recorder:   # OverlayWriter's interface; the file appears on close, as a video's would
+        def __init__(self, path, ctx, labels=None, labels_right=None):
+            self.path = path
+            drawn[path.name] = []
+
+        def write(self, frame, estimate, detection=None, observation=None, tip=None, right=(None, None)):
+            drawn[self.path.name].append((frame.index, np.array(estimate.E)))
+
+        def close(self):
+            self.path.write_bytes(b"video")
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.close()
+
+    monkeypatch.setattr(overlay_run, "OverlayWriter", Recorder)
+    out = tmp_path / "out"
+    track(rec, out, TrackOptions(estimator="batch"), video=True, progress=False, max_frames=8, quiet=True)
+    rows = read_trajectory(out / "trajectory.csv")
+    streamed, refined = drawn["overlay.mp4"], drawn[overlay_run.REFINED_NAME]
+    assert [i for i, _ in refined] == [i for i, _ in streamed] == rows["frame"].tolist()
+    assert max(np.abs(E - F).max() for (_, E), F in zip(refined, rows["E"])) < 1e-9   # csv precision
+    assert max(np.abs(E - F).max() for (_, E), F in zip(streamed, rows["E"])) > 1e-6   # the online ones
+    assert (out / "overlay.mp4").read_bytes() == b"video" and not (out / overlay_run.REFINED_NAME).exists()
+
+
 def test_draw_overlay_marks_tip_label_detection(rec):
     from graphtrack.detect.base import Detection, Observation
     from graphtrack.io.frame import Frame

@@ -67,7 +67,8 @@ class Estimator(Protocol):
     name: the estimator's name in outputs and studies (``--estimator``);
     uses_observations: False when it ignores images (the loop then skips
     undistortion, detection and observation); stochastic: True when its
-    estimate depends on the seed (studies repeat it over seeds);
+    estimate depends on the seed (studies repeat it over seeds); offline: True
+    when :meth:`finish` replaces every streamed answer (the refined estimates);
     supported_observations: the observation models (``Observation.model``) it
     can score, () for one that uses none; extra_columns: its trajectory.csv
     columns beyond the standard ones (values from ``Estimate.extra`` / ``std``).
@@ -76,6 +77,7 @@ class Estimator(Protocol):
     name: ClassVar[str]
     uses_observations: ClassVar[bool]
     stochastic: ClassVar[bool]
+    offline: ClassVar[bool]
     supported_observations: ClassVar[tuple[str, ...]]
     extra_columns: ClassVar[tuple[str, ...]]
 

@@ -63,6 +63,7 @@ class BatchEstimator:
 
     name = "batch"
     uses_observations = True
+    offline = True
     stochastic = False
     supported_observations = OBSERVATION_MODELS
     #: std_*, ``kept_online``: 1 where the refined pose left the hand-eye prior's 99.9 % region

@@ -11,6 +11,7 @@ class KinematicsEstimator:
 
     name = "kinematics"
     uses_observations = False
+    offline = False
     stochastic = False
     supported_observations = ()
     extra_columns = ()

@@ -84,6 +84,7 @@ class ParticleFilter:
     name = "pf"
     stochastic = True   #: the estimate depends on ``seed`` (resampling): studies repeat it
     uses_observations = True
+    offline = False
     supported_observations = om.OBSERVATION_MODELS
     extra_columns = STD_COLUMNS + ("ess", "outlier")
 

@@ -87,6 +87,7 @@ class FixedLagSmootherEstimator:
 
     name = "smoother"
     uses_observations = True
+    offline = False
     stochastic = False
     supported_observations = OBSERVATION_MODELS
     extra_columns = STD_COLUMNS + ("smoother_ms", "outlier")
@@ -146,9 +147,8 @@ class FixedLagSmootherEstimator:
             self.start_up_wait = 0    # the search associates markers per hypothesis
         self.restarts = 0             # windows dropped (re-initialisation, containment, refusal)
         self.prior_cov = np.diag(np.square([prior_sigma_b] * 3 + [prior_sigma_w] * 3))
-        self.contained = 0            # estimates outside the prior's region not reported (module doc)
         self.refuse_rise = None if refuse_misfit_rise is None else float(refuse_misfit_rise)
-        self.refused = 0              # updates refused (module doc)
+        self.contained = self.refused = 0   # estimates outside the prior's region not reported; updates refused
         self.window_prior = None      # after a refusal: the restarted window's prior noise at self.last
 
     # -- helpers ---------------------------------------------------------------------

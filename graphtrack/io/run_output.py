@@ -25,7 +25,8 @@ from pathlib import Path
 from graphtrack.errors import InputError
 
 #: the files a tracking run writes into its output folder
-RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", "truth_errors.csv",
+RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", "overlay.refined.mp4",
+             "truth_errors.csv",
              "trajectory.csv.tmp", "trajectory.tum.tmp", "metrics.json.tmp", "truth_errors.csv.tmp")
 
 

@@ -26,7 +26,6 @@ from graphtrack.allocator import keep_freed_memory
 from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_metrics
-from graphtrack.eval.overlay import OverlayWriter
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
@@ -37,6 +36,7 @@ from graphtrack.io.recording import Recording, open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.trajectory import TrajectoryWriter
 from graphtrack.track.pipeline import MAX_GATE_PX, Pipeline, TrackOptions, tip_pixel, tip_point  # noqa: F401
+from graphtrack.track.overlay_run import RunOverlay
 from graphtrack.track.runlog import RunLog, read_frames, warn
 
 
@@ -170,8 +170,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
         warn(f"warning: {line}", quiet)
     grey = None   # the greyscale-frames test's verdict (_grey_markers), None until a frame decides
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
-    overlay = OverlayWriter(out / "overlay.mp4", ctx, labels=rec.labels,
-                            labels_right=rec.labels_right) if video else None
+    overlay = RunOverlay(out / "overlay.mp4", ctx, rec, pipe.estimator.offline) if video else None
     run = RunLog()
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
     bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
@@ -214,8 +213,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     wall = time.perf_counter() - t_wall
     if bar is not None:
         bar.close()
-    if overlay is not None:
-        overlay.close()
+    if overlay is not None:   # offline: drawn again with the refined poses
+        overlay.finish(run.rows, run.tips, right=ctx.stereo and pipe.needs_images)
     result = _metrics(path, out, options, rec, ctx, pipe, run, wall, notes, quiet)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     require_tracked(result, out)   # no tracked frame: an error, never a silent success

@@ -1,0 +1,63 @@
+"""A tracking run's overlay video (``--video``): each frame drawn with the pose the run
+reports for it.
+
+Frames are drawn as they are tracked, with the streamed answers. An offline
+estimator (``batch``) replaces every streamed answer after the last frame
+(trajectory.csv is rewritten), so its video is then drawn again, in a second pass
+over the recording with the refined poses, into ``REFINED_NAME`` and renamed over the
+first: an interrupted run keeps the streamed video, as it keeps the streamed rows. The
+detections and observations of the first pass are kept for the second (a few kB per
+frame); the images are read again.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from graphtrack.errors import FrameError
+from graphtrack.estimate.base import Estimate
+from graphtrack.eval.overlay import OverlayWriter
+from graphtrack.io.context import TrackingContext
+from graphtrack.io.recording import Recording
+
+#: the refined video while it is drawn (renamed to overlay.mp4 when complete)
+REFINED_NAME = "overlay.refined.mp4"
+
+
+class RunOverlay:
+    """overlay.mp4 of one run; ``offline``: drawn again by :meth:`finish` (module doc)."""
+
+    def __init__(self, path: Path, ctx: TrackingContext, rec: Recording, offline: bool):
+        self.path, self.ctx, self.rec = Path(path), ctx, rec
+        self.writer = self._writer(self.path)
+        self.kept: dict[int, tuple] | None = {} if offline else None   # index -> (detection, observation, right)
+
+    def _writer(self, path: Path) -> OverlayWriter:
+        return OverlayWriter(path, self.ctx, labels=self.rec.labels, labels_right=self.rec.labels_right)
+
+    def write(self, frame, estimate: Estimate, detection, observation, tip, right) -> None:
+        """Draw a tracked frame with its streamed answer (offline: keep what a redraw needs)."""
+        self.writer.write(frame, estimate, detection, observation, tip, right)
+        if self.kept is not None:
+            self.kept[int(frame.index)] = (detection, observation, right)
+
+    def finish(self, rows: list, tips: list, right: bool) -> None:
+        """Close the streamed video; offline, draw every tracked frame again with its refined
+        pose (``rows``: the run's (index, stamp, q, ms, E), ``tips`` their tip pixels),
+        reading the images again (``right``: the right ones too), and replace it."""
+        self.writer.close()
+        if self.kept is None or not rows:
+            return
+        refined = {int(r[0]): (r[4], tip) for r, tip in zip(rows, tips)}
+        last = max(refined)
+        tmp = self.path.with_name(REFINED_NAME)
+        with self._writer(tmp) as writer:
+            for frame in self.rec.frames(right=right):
+                if isinstance(frame, FrameError) or int(frame.index) not in refined:
+                    continue
+                E, tip = refined[int(frame.index)]
+                det, obs, right_views = self.kept[int(frame.index)]
+                writer.write(frame, Estimate(E), det, obs, tip, right_views)
+                if int(frame.index) >= last:
+                    break
+        os.replace(tmp, self.path)
