@@ -145,6 +145,22 @@ def test_repeats_run_seed_dependent_cells_and_report_their_mean(rec, tmp_path):
     assert _compare([rec], out, "--estimators", "pf", "--repeats", "0") == 2
 
 
+def test_the_plot_names_its_seed(rec, tmp_path, monkeypatch):
+    """The accumulated-error plot draws a repeated cell's first seed (table.csv: their mean),
+    and says so (its curves are labelled by the cells' rows, "(mono)" included:
+    test_track_stereo.py)."""
+    from matplotlib.figure import Figure
+
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, path, **kw: seen.append(
+        (fig.axes[0].get_title(), [t.get_text() for t in fig.axes[0].get_legend().get_texts()])))
+    out = tmp_path / "study"
+    assert _compare([rec], out, "--estimators", "pf", "--observations", "line-intensities", "--max-frames", "4",
+                    "--repeats", "2", "--seed", "3") == 0
+    title, legend = seen[-1]
+    assert "the run with seed 3" in title and legend == ["pf / line-intensities"]
+
+
 def test_a_recording_without_labels_is_named_in_the_notes(rec, tmp_path):
     """Without labels.csv every accuracy entry is n/a: table.md says why instead of
     leaving a table of n/a and no plot unexplained."""

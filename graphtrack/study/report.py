@@ -208,7 +208,8 @@ def _write_results(path: Path, status: list) -> None:
 
 def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
     """accumulated_error_<recording>.png: one curve per completed cell with labels (the
-    study's own seed of a repeated one)."""
+    study's own seed of a repeated one, as the title says; "(mono)" marks the mono cells
+    of a study over both views)."""
     import matplotlib  # lazy: heavy, and only the plots need it (a study without plots never loads it)
 
     matplotlib.use("Agg")
@@ -235,11 +236,16 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
             frames, errs = tip_error_series(traj, labels, diag)
             if len(frames) == 0:
                 continue
-            ax.plot(frames, accumulated_error(errs), label=c.estimator if c.observation is None else f"{c.estimator} / {c.observation}", lw=1.4)
+            est = c.row[1]   # "(mono)" marked in a study over both views
+            ax.plot(frames, accumulated_error(errs), label=est if c.observation is None else f"{est} / {c.observation}",
+                    lw=1.4)
             drawn += 1
         ax.set_xlabel("frame")
         ax.set_ylabel("accumulated tip error (% of diagonal)")
-        ax.set_title(f"{rec}: running mean of the 2-D tool-tip error")
+        repeated = any(c.recording == rec and c.repeat > 0 for c in cells)   # table.csv: their seeds' mean
+        ax.set_title(f"{rec}: running mean of the 2-D tool-tip error"
+                     + (f"\n(repeated estimators: the run with seed {mine[0].options['seed']})" if repeated else ""),
+                     fontsize=10)
         ax.grid(alpha=0.3)
         if drawn:
             ax.legend(fontsize=7, loc="best")
