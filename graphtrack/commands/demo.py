@@ -42,9 +42,12 @@ def run_demo(out: str | Path = "graphtrack-demo", frames: int = FRAMES, size=SIZ
     if frames <= 0:
         raise InputError("--frames must be positive")
     out = Path(out)
+    say = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
     if detector is None:
         detector, _ = default_detector()
-    say = (lambda *a: None) if quiet else (lambda *a: print(*a, file=sys.stderr))
+        if detector == "canny":
+            say("graphtrack demo: note: the learned detector's weights are not installed "
+                "(graphtrack/data/learned_detector.pt): the demo uses the canny detector")
     say(f"graphtrack demo: simulating {frames}-frame recordings ({size[0]}x{size[1]}, height x width) into the cache "
         f"(first run only)")
     size = tuple(size)
