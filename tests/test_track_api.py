@@ -120,3 +120,19 @@ def test_track_raises_where_the_command_line_exits_2(stereo, tmp_path):
     with pytest.raises(InputError, match=r"holds another run's files"):
         track(stereo, tmp_path / "o", options, progress=False, quiet=True)
     track(stereo, tmp_path / "o", options, progress=False, quiet=True, overwrite=True)
+
+
+def test_a_one_frame_run_has_no_steady_rate():
+    """frame_ms_mean / fps_steady cover frames 1 ...: none in a one-frame run (null), not
+    frame 0's start-up cost."""
+    import math
+
+    from graphtrack.track.runlog import RunLog
+
+    run = RunLog()
+    run.frame_ms = [504.0]
+    s = run.summary(0.6)
+    assert math.isnan(s["frame_ms_mean"]) and math.isnan(s["fps_steady"])
+    run.frame_ms = [504.0, 20.0, 30.0]
+    s = run.summary(0.6)
+    assert s["frame_ms_mean"] == 25.0 and s["fps_steady"] == 40.0

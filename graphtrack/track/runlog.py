@@ -64,10 +64,11 @@ class RunLog:
     def summary(self, wall: float) -> dict:
         """Frame counts, median ms per stage, fps over the wall time and the steady state:
         every per-frame cost (decode ... write) of frames 1.. (frame 0 also pays the
-        start-up: the bag's joint pass, first use of the detector), no finish()."""
+        start-up: the bag's joint pass, first use of the detector), no finish(); NaN (null in
+        metrics.json) without a frame 1."""
         out = {"timing_ms_median": {s: float(np.median(v)) if v else 0.0 for s, v in self.stage_ms.items()},
                "fps": float(len(self.frames) / wall) if wall > 0 else float("nan")}
-        steady = self.frame_ms[1:] if len(self.frame_ms) > 1 else self.frame_ms
+        steady = self.frame_ms[1:]   # none in a one-frame run: null, not the start-up's cost
         out["frame_ms_mean"] = float(np.mean(steady)) if steady else float("nan")
         out["fps_steady"] = float(1e3 / np.mean(steady)) if steady else float("nan")
         out["wall_s"] = float(wall)
