@@ -189,8 +189,9 @@ def test_bag_right_matched_by_stamp_not_order(tmp_path):
 @pytest.mark.parametrize("offset_ms, shift", [(12.0, 0), (-16.0, 0), (17.5, 1)])
 def test_bag_right_paired_within_half_a_period(tmp_path, offset_ms, shift):
     """Two free-running cameras at 30 frames/s are up to 16.7 ms apart: a left image takes the
-    right image nearest in time within half the right stream's period (17.5 ms after left k
-    is 15.8 ms before left k + 1: that frame's pair; left 0 has none)."""
+    right image nearest in time within half the streams' period (17.5 ms after left k is
+    15.8 ms before left k + 1: that frame's pair). The first frame, before the left period
+    is known, pairs within 10 ms only."""
     from graphtrack.io import bag
 
     seq = tmp_path / "seq"
@@ -203,9 +204,27 @@ def test_bag_right_paired_within_half_a_period(tmp_path, offset_ms, shift):
     _merge_bags(tmp_path / "l.bag", tmp_path / "r.bag", seq / "s.bag", bag.IMAGE_TOPIC, bag.RIGHT_IMAGE_TOPIC)
     rec = open_recording(seq, **NO_ROBOT)
     out = list(rec.frames())
-    assert rec.right_skips["missing"] == shift
-    for f in out[shift:]:
+    assert rec.right_skips["missing"] == 1 and out[0].image_right is None
+    for f in out[1:]:
         np.testing.assert_array_equal(f.image_right, frames[f.index - shift].image_right)
+
+
+def test_bag_right_stream_slower_than_the_left(tmp_path):
+    """Right images at half the left rate, 30 ms after every other left image: each pairs
+    with the left image 3.3 ms from it, not the one 30 ms before it (half the LEFT period)."""
+    from graphtrack.io import bag
+
+    seq = tmp_path / "seq"
+    frames = make_seq(seq, stereo_calibration(True), n=6)
+    lefts = [NS(stamp=f.stamp, image=f.image, joints=f.joints, jaw=f.jaw) for f in frames]
+    rights = [NS(stamp=f.stamp + 0.030, image=f.image_right, joints=f.joints, jaw=f.jaw) for f in frames[::2]]
+    write_bag(tmp_path / "l.bag", lefts)
+    write_bag(tmp_path / "r.bag", rights)
+    _merge_bags(tmp_path / "l.bag", tmp_path / "r.bag", seq / "s.bag", bag.IMAGE_TOPIC, bag.RIGHT_IMAGE_TOPIC)
+    out = list(open_recording(seq, **NO_ROBOT).frames())
+    assert [f.image_right is not None for f in out] == [False, True, False, True, False, True]
+    for f in out[1::2]:
+        np.testing.assert_array_equal(f.image_right, frames[f.index - 1].image_right)
 
 
 def _merge_bags(left, right, out, left_topic, right_topic, left_as=None):

@@ -18,8 +18,9 @@ by :mod:`graphtrack.io.image_msg`):
    Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
    alongside, in bag order, with a small look-ahead; a left image takes the right
    image whose header stamp is nearest its own if they differ by at most half the
-   right images' median period (two free-running cameras at 30 frames/s are up to
-   16.7 ms apart), or ``RIGHT_SYNC_S`` if that is more (left and right stamps must
+   shorter median period of the two streams (two free-running cameras at 30 frames/s are
+   up to 16.7 ms apart), or ``RIGHT_SYNC_S`` if that is more (and on the first frame,
+   before the left period is known) (left and right stamps must
    increase in bag order). A left
    image without one (missing, or not decodable) gets ``image_right`` None and
    is counted in ``BagSource.right_skips``.
@@ -340,14 +341,21 @@ class _RightMatcher:
     def __init__(self, source: BagSource, messages):
         self.src, self.it, self.buf, self.done = source, messages, [], False
         self.recent: list[int] = []    # the last right stamps pulled (ns), for their period
+        self.lefts: list[int] = []     # the last left stamps asked for (ns)
         self.tol = int(RIGHT_SYNC_S * 1e9)
 
     def _tolerance(self) -> int:
-        """ns: half the median period of the right stamps pulled so far, RIGHT_SYNC_S at least."""
-        steps = np.diff(self.recent)
-        steps = steps[steps > 0]
-        half = int(np.median(steps) // 2) if steps.size else 0
-        return max(int(RIGHT_SYNC_S * 1e9), half)
+        """ns: half the shorter median period of the right stamps pulled and the left ones
+        asked for so far (a slower stream must not pair one image with a farther frame),
+        RIGHT_SYNC_S at least; RIGHT_SYNC_S until both periods are known (the first frame)."""
+        periods = []
+        for stamps in (self.recent, self.lefts):
+            steps = np.diff(stamps)
+            steps = steps[steps > 0]
+            if not steps.size:
+                return int(RIGHT_SYNC_S * 1e9)
+            periods.append(int(np.median(steps)))
+        return max(int(RIGHT_SYNC_S * 1e9), min(periods) // 2)
 
     def _pull(self) -> None:
         try:
@@ -371,6 +379,8 @@ class _RightMatcher:
 
     def image(self, t_ns: int):
         """The decoded right image for left stamp t_ns, or None (counted in right_skips)."""
+        self.lefts = self.lefts[-15:] + [t_ns]
+        self.tol = self._tolerance()
         while not self.done and (not self.buf or self.buf[-1][0] <= t_ns + self.tol or len(self.recent) < 2):
             self._pull()   # up to the first beyond the tolerance, and two for a period
         while self.buf and self.buf[0][0] < t_ns - self.tol:
