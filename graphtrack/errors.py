@@ -26,6 +26,13 @@ class FrameError(Exception):
         self.reason = reason
 
 
+def one_line(e: BaseException) -> str:
+    """An exception's first line (at most 300 characters; its type's name when empty), for
+    messages that must stay one line."""
+    s = str(e).strip().splitlines()
+    return (s[0] if s else type(e).__name__)[:300]
+
+
 def read_text(path) -> str:
     """The UTF-8 text of a configuration or CSV file; InputError naming the file when it
     is missing, unreadable, or not UTF-8 (with the byte offset of the first bad byte)."""

@@ -16,14 +16,8 @@ by :mod:`graphtrack.io.image_msg`):
    that topic's readings if more, the frame is skipped (``no_joint_reading``: joints
    not recorded then, or stamped on another clock).
    Stereo bags: the right images (``/stereo/right/image[/compressed]``) are read
-   alongside, in bag order, with a small look-ahead; a left image takes the right
-   image whose header stamp is nearest its own if they differ by at most half the
-   shorter median period of the two streams (two free-running cameras at 30 frames/s are
-   up to 16.7 ms apart), or ``RIGHT_SYNC_S`` if that is more (and on the first frame,
-   before the left period is known) (left and right stamps must
-   increase in bag order). A left
-   image without one (missing, or not decodable) gets ``image_right`` None and
-   is counted in ``BagSource.right_skips``.
+   alongside and paired by stamp (:mod:`graphtrack.io.bag_right`); a left image
+   without one gets ``image_right`` None and is counted in ``BagSource.right_skips``.
 
 A message whose header stamp is zero (never set by its publisher) uses its bag
 record time instead.
@@ -47,8 +41,9 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from graphtrack.errors import FrameError, InputError
+from graphtrack.errors import FrameError, InputError, one_line as _one_line
 from graphtrack.io.bag1scan import Bag1Scan
+from graphtrack.io.bag_right import RightMatcher
 from graphtrack.io.bag_stamps import JointTable, header_ns, raw_header_ns
 from graphtrack.io.frame import Frame
 from graphtrack.io.joint_names import in_dh_order
@@ -58,8 +53,6 @@ from graphtrack.io.topics import IMAGE_TOPICS, RIGHT_IMAGE_TOPICS, TopicSelectio
 IMAGE_TOPIC, COMPRESSED_TOPIC = IMAGE_TOPICS
 RIGHT_IMAGE_TOPIC, RIGHT_COMPRESSED_TOPIC = RIGHT_IMAGE_TOPICS
 JOINT_TYPE = "sensor_msgs/msg/JointState"
-#: s, the least largest left-right stamp difference of a stereo pair (module doc: half a period, if more)
-RIGHT_SYNC_S = 0.010
 #: s, the farthest a frame's nearest joint (jaw) reading may be from its image's stamp,
 #: or 3 median reading periods when that is more (dVRK joint states come at 100 Hz or
 #: more); farther, the frame is skipped as no_joint_reading
@@ -282,7 +275,7 @@ class BagSource:
         index = -1
         decoded = False   # an image of this pass has decoded
         it = self._image_messages()
-        right = (_RightMatcher(self, self._image_messages(self.right_topic))
+        right = (RightMatcher(self, self._image_messages(self.right_topic))
                  if self.right_topic and right else None)
         while True:
             try:
@@ -333,71 +326,3 @@ class BagSource:
                 self._stamps = np.array([raw_header_ns(raw, self.ros2) or t
                                          for _, t, raw in r.messages(connections=conns)], dtype=np.int64)
         return self._stamps / 1e9
-
-
-class _RightMatcher:
-    """Right images matched to left stamps in one forward pass (module doc, pass 2)."""
-
-    def __init__(self, source: BagSource, messages):
-        self.src, self.it, self.buf, self.done = source, messages, [], False
-        self.recent: list[int] = []    # the last right stamps pulled (ns), for their period
-        self.lefts: list[int] = []     # the last left stamps asked for (ns)
-        self.tol = int(RIGHT_SYNC_S * 1e9)
-
-    def _tolerance(self) -> int:
-        """ns: half the shorter median period of the right stamps pulled and the left ones
-        asked for so far (a slower stream must not pair one image with a farther frame),
-        RIGHT_SYNC_S at least; RIGHT_SYNC_S until both periods are known (the first frame)."""
-        periods = []
-        for stamps in (self.recent, self.lefts):
-            steps = np.diff(stamps)
-            steps = steps[steps > 0]
-            if not steps.size:
-                return int(RIGHT_SYNC_S * 1e9)
-            periods.append(int(np.median(steps)))
-        return max(int(RIGHT_SYNC_S * 1e9), min(periods) // 2)
-
-    def _pull(self) -> None:
-        try:
-            t, raw, deser = next(self.it)
-        except StopIteration:
-            self.done = True
-            return
-        except Exception as e:  # noqa: BLE001 - damaged right data: the rest is left-only
-            self.done = True
-            self.src.warnings.append(f"{self.src.path}: {self.src.right_topic} unreadable ({_one_line(e)}); "
-                                     "later frames are left-only")
-            return
-        ns = raw_header_ns(raw, self.src.ros2) if len(raw) >= 12 else 0
-        try:  # deserialized now: the reader behind ``deser`` closes when the messages end
-            msg = deser(raw, self.src.right_type)
-        except Exception:  # noqa: BLE001 - decoded below as corrupt
-            msg = None
-        self.buf.append((ns or t, msg))
-        self.recent = self.recent[-15:] + [ns or t]
-        self.tol = self._tolerance()
-
-    def image(self, t_ns: int):
-        """The decoded right image for left stamp t_ns, or None (counted in right_skips)."""
-        self.lefts = self.lefts[-15:] + [t_ns]
-        self.tol = self._tolerance()
-        while not self.done and (not self.buf or self.buf[-1][0] <= t_ns + self.tol or len(self.recent) < 2):
-            self._pull()   # up to the first beyond the tolerance, and two for a period
-        while self.buf and self.buf[0][0] < t_ns - self.tol:
-            self.buf.pop(0)
-        best = min(range(len(self.buf)), key=lambda k: abs(self.buf[k][0] - t_ns), default=None)
-        if best is None or abs(self.buf[best][0] - t_ns) > self.tol:
-            self.src.right_skips["missing"] += 1
-            return None
-        _, msg = self.buf[best]
-        del self.buf[:best + 1]
-        try:
-            return decode_image(msg, self.src.right_type, str(self.src.path))
-        except Exception:  # noqa: BLE001 - a corrupt right image: left-only for this frame
-            self.src.right_skips["corrupt"] += 1
-            return None
-
-
-def _one_line(e: BaseException) -> str:
-    s = str(e).strip().splitlines()
-    return (s[0] if s else type(e).__name__)[:300]

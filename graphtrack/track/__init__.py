@@ -214,7 +214,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     if bar is not None:
         bar.close()
     if overlay is not None:   # offline: drawn again with the refined poses
-        overlay.finish(run.rows, run.tips, right=ctx.stereo and pipe.needs_images)
+        overlay.finish(run.rows, run.tips, ctx.stereo and pipe.needs_images, progress and not quiet)
     result = _metrics(path, out, options, rec, ctx, pipe, run, wall, notes, quiet)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     require_tracked(result, out)   # no tracked frame: an error, never a silent success

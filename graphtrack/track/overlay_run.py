@@ -6,13 +6,17 @@ estimator (``batch``) replaces every streamed answer after the last frame
 (trajectory.csv is rewritten), so its video is then drawn again, in a second pass
 over the recording with the refined poses, into ``REFINED_NAME`` and renamed over the
 first: an interrupted run keeps the streamed video, as it keeps the streamed rows. The
-detections and observations of the first pass are kept for the second (a few kB per
-frame); the images are read again.
+detections (without their heatmaps, which the video does not draw) and observations of
+the first pass are kept for the second (a few kB per frame); the images are read again.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
+import sys
 from pathlib import Path
+
+from tqdm import tqdm
 
 from graphtrack.errors import FrameError
 from graphtrack.estimate.base import Estimate
@@ -39,25 +43,34 @@ class RunOverlay:
         """Draw a tracked frame with its streamed answer (offline: keep what a redraw needs)."""
         self.writer.write(frame, estimate, detection, observation, tip, right)
         if self.kept is not None:
-            self.kept[int(frame.index)] = (detection, observation, right)
+            det_r, obs_r = right
+            self.kept[int(frame.index)] = (_slim(detection), observation, (_slim(det_r), obs_r))
 
-    def finish(self, rows: list, tips: list, right: bool) -> None:
+    def finish(self, rows: list, tips: list, right: bool, progress: bool = False) -> None:
         """Close the streamed video; offline, draw every tracked frame again with its refined
         pose (``rows``: the run's (index, stamp, q, ms, E), ``tips`` their tip pixels),
-        reading the images again (``right``: the right ones too), and replace it."""
+        reading the images again (``right``: the right ones too; ``progress``: a bar), and
+        replace it."""
         self.writer.close()
         if self.kept is None or not rows:
             return
         refined = {int(r[0]): (r[4], tip) for r, tip in zip(rows, tips)}
         last = max(refined)
         tmp = self.path.with_name(REFINED_NAME)
-        with self._writer(tmp) as writer:
+        with self._writer(tmp) as writer, tqdm(total=len(refined), desc="overlay, refined", unit="frame",
+                                               file=sys.stderr, disable=not progress) as bar:
             for frame in self.rec.frames(right=right):
                 if isinstance(frame, FrameError) or int(frame.index) not in refined:
                     continue
                 E, tip = refined[int(frame.index)]
                 det, obs, right_views = self.kept[int(frame.index)]
                 writer.write(frame, Estimate(E), det, obs, tip, right_views)
+                bar.update(1)
                 if int(frame.index) >= last:
                     break
         os.replace(tmp, self.path)
+
+
+def _slim(detection):
+    """The detection without its heatmap (None stays None)."""
+    return None if detection is None else dataclasses.replace(detection, heatmap=None)
