@@ -47,7 +47,8 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
         raise ValueError(f"dvrk_version must be 1 or 2, got {dvrk_version!r}")
     joint_topic, jaw_topic = joint_topics(arm)[dvrk_version - 1], jaw_topics(arm)[dvrk_version - 1]
     names = list(joint_names or [])
-    order = [DVRK_PSM_JOINTS.index(n) for n in names]   # ValueError for a name the PSM has not
+    # the values in the names' order (ValueError for a name the PSM has not); all, unnamed
+    order = [DVRK_PSM_JOINTS.index(n) for n in names] or slice(None)
     if image_format not in ("png", "jpeg", "jpg"):
         raise ValueError(f"image_format must be png or jpeg, got {image_format!r}")
     ts = get_typestore(Stores.ROS1_NOETIC)
@@ -77,7 +78,7 @@ def write_bag(path: str | Path, frames: Iterable, compressed: bool = False, imag
                                                     img_type, typestore=ts)
                 hdr_r = T["std_msgs/msg/Header"](seq=n, stamp=hdr.stamp, frame_id="right")
                 writer.write(c_right, t, ts.serialize_ros1(_image_msg(T, hdr_r, right, compressed, ext, n), img_type))
-            writer.write(c_joint, t, ts.serialize_ros1(_joint_state(T, hdr, np.asarray(f.joints)[order] if names else f.joints, names), JOINT_TYPE))
+            writer.write(c_joint, t, ts.serialize_ros1(_joint_state(T, hdr, np.asarray(f.joints)[order], names), JOINT_TYPE))
             jaw = float(getattr(f, "jaw", float("nan")))
             if math.isfinite(jaw):
                 if c_jaw is None:

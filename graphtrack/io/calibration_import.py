@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError, is_number, number_list, read_text, read_yaml
+from graphtrack.errors import InputError, is_number, number_list, one_line, read_text, read_yaml
 from graphtrack.geometry.camera import Calibration, Camera
 from graphtrack.io.bag import open_bag
 from graphtrack.io.recording import is_ros2_bag
@@ -166,8 +166,7 @@ def read_bag_cameras(path: str | Path, topics: list[str] | None = None) -> tuple
     except InputError:
         raise
     except Exception as e:  # noqa: BLE001 - rosbags raises many types on damaged or foreign files
-        why = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise InputError(f"{path}: cannot read the bag's camera_info ({why})") from None
+        raise InputError(f"{path}: cannot read the bag's camera_info ({one_line(e)})") from None
 
 
 def _from_message(msg, where: str) -> RosCamera:
