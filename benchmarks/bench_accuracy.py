@@ -50,16 +50,14 @@ WORKERS = int(os.environ.get("GRAPHTRACK_BENCH_WORKERS", str(os.cpu_count() or 1
 def run(results: dict) -> dict:
     from graphtrack.detect.base import OBSERVATION_MODELS
     from graphtrack.study import StudyOptions, run_study
-    from graphtrack.sim import simulate
+    from graphtrack.sim.simulate import simulated_once
 
     if WORKERS > 1 and hasattr(os, "sched_setaffinity"):  # run_all pins itself to one core
         os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
     paths = []
     for scene, seed in RECORDINGS:
-        p = DATA / f"acc-{scene}-{seed}-{FRAMES}"
-        if not (p / ".complete").exists():
-            simulate(p, scene=scene, frames=FRAMES, seed=seed, size=(540, 960), progress=True)
-            (p / ".complete").write_text("")
+        p = simulated_once(DATA / f"acc-{scene}-{seed}-{FRAMES}", scene=scene, frames=FRAMES, seed=seed,
+                           size=(540, 960), progress=True)
         paths.append(str(p))
     out = DATA / "accuracy-study"
     run_study(paths, out, StudyOptions(estimators=list(ESTIMATORS), observations=list(OBSERVATION_MODELS),

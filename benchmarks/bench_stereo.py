@@ -39,13 +39,10 @@ ESTIMATORS = ("smoother", "batch")
 
 
 def recording(scene: str, seed: int) -> Path:
-    from graphtrack.sim import simulate
+    from graphtrack.sim.simulate import simulated_once
 
-    path = DATA / f"stereo-{scene}-540x960-{FRAMES}-{seed}"
-    if not (path / ".complete").exists():
-        simulate(path, scene=scene, frames=FRAMES, seed=seed, size=(540, 960), stereo=True, progress=False)
-        (path / ".complete").write_text("")
-    return path
+    return simulated_once(DATA / f"stereo-{scene}-540x960-{FRAMES}-{seed}", scene=scene, frames=FRAMES,
+                          seed=seed, size=(540, 960), stereo=True, progress=False)
 
 
 def _track(path: Path, out: Path, estimator: str, stereo: bool) -> dict:

@@ -46,15 +46,12 @@ STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
 
 
 def recording(size, frames=FRAMES, seed=7, compressed=False) -> Path:
-    from graphtrack.sim import simulate
+    from graphtrack.sim.simulate import simulated_once
 
     h, w = size
-    path = DATA / f"structured-{h}x{w}-{frames}-{seed}{'-jpeg' if compressed else ''}"
-    if not (path / ".complete").exists():
-        simulate(path, scene="structured", frames=frames, seed=seed, size=size, compressed=compressed,
-                 progress=True)
-        (path / ".complete").write_text("")
-    return path
+    return simulated_once(DATA / f"structured-{h}x{w}-{frames}-{seed}{'-jpeg' if compressed else ''}",
+                          scene="structured", frames=frames, seed=seed, size=size, compressed=compressed,
+                          progress=True)
 
 
 def _poll_peak_rss_kb(child) -> float:

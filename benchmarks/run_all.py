@@ -7,7 +7,10 @@ Each ``benchmarks/bench_<name>.py`` exposes ``run(results: dict)`` filling
 ``results[<name>]`` with figures. This runner pins the process to one CPU core
 (and one thread for numpy/OpenCV/torch), keeps the figures of every section in
 ``benchmarks/results.json`` and renders RESULTS.md: the machine, each target
-next to its measured value, then every section's figures and tables.
+next to its measured value, then every section's figures and tables. Each section
+keeps the machine and date it was measured on: when a subset is re-run on another
+machine, RESULTS.md names each section's and each target's machine, since timings
+from two machines do not compare.
 Timings are medians over repeated runs after warm-up (see each benchmark).
 """
 from __future__ import annotations
@@ -108,21 +111,34 @@ def _flatten(d: dict, prefix: str = "") -> dict:
     return out
 
 
+def _run_of(results: dict, section: str) -> dict:
+    """Where and when a section was measured: its own ``_run``, else the file's (older results)."""
+    run = results.get(section, {}).get("_run") or {}
+    return {k: run.get(k, results.get(f"_{k}", "?")) for k in ("machine", "date", "pinning")}
+
+
 def render(results: dict) -> str:
+    runs = {s: _run_of(results, s) for s in RENDERED if results.get(s)}
+    machines = sorted({r["machine"] for r in runs.values()}) or [results.get("_machine", "?")]
     lines = ["# Benchmark results", "",
              f"Written by `python benchmarks/run_all.py` on {results.get('_date', '?')}.", "",
-             f"Machine: {results.get('_machine', '?')}. Every figure is measured on ONE core "
-             f"({results.get('_pinning', '?')}, one thread for numpy/OpenCV/torch); timings are medians "
-             "over repeated runs after warm-up.", ""]
+             (f"Machine: {machines[0]}." if len(machines) == 1 else
+              f"Machines (each section names its own): {' — '.join(machines)}.") + " Every figure is measured on "
+             f"ONE core ({results.get('_pinning', '?')}, one thread for numpy/OpenCV/torch); timings are "
+             "medians over repeated runs after warm-up.", ""]
     if results.get("_note"):
         lines += [str(results["_note"]), ""]
-    lines += ["## Targets", "", "| what | target | measured | met |", "|---|---|---|---|"]
+    mixed = len(machines) > 1   # timings from different machines do not compare: say whose each is
+    lines += ["## Targets", "", "| what | target | measured | met |" + (" measured on |" if mixed else ""),
+              "|---|---|---|---|" + ("---|" if mixed else "")]
     for section, key, what, target, op, unit in TARGETS:
         v = _flatten(results.get(section, {})).get(key)
+        where = f" {_run_of(results, section)['machine'].split(';')[0]}, {_run_of(results, section)['date']} |" \
+            if mixed else ""
         if v is not None and op == ">=fps":  # the figure is ms per frame
             v, op = 1000.0 / v, ">="
         if v is None:
-            lines.append(f"| {what} | {op.replace('fps', '')} {target} {unit} | not measured | – |")
+            lines.append(f"| {what} | {op.replace('fps', '')} {target} {unit} | not measured | – |" + where)
             continue
         if op == "in":
             ok = target[0] <= v <= target[1]
@@ -130,14 +146,16 @@ def render(results: dict) -> str:
         else:   # within rounding: a fraction averaged over seeds (3 x 0.99 -> 0.98999...) meets 0.99
             ok = v >= target - 1e-9 if op == ">=" else v <= target + 1e-9
             want = f"{op} {target} {unit}"
-        lines.append(f"| {what} | {want} | {_fmt(v)} {unit} | {'yes' if ok else '**no**'} |")
+        lines.append(f"| {what} | {want} | {_fmt(v)} {unit} | {'yes' if ok else '**no**'} |" + where)
     for section in RENDERED:
         res = results.get(section)
         if not res:
             continue
         lines += ["", f"## {section}", ""]
+        if mixed:
+            lines += [f"Measured on {runs[section]['date']}: {runs[section]['machine']}.", ""]
         tables = res.get("tables", {})
-        scalars = _flatten({k: v for k, v in res.items() if k not in ("tables", "notes", "plots")})
+        scalars = _flatten({k: v for k, v in res.items() if k not in ("tables", "notes", "plots", "_run")})
         if scalars:
             lines += ["| figure | value |", "|---|---|"]
             lines += [f"| {k} | {_fmt(v)} |" for k, v in scalars.items()]
@@ -196,6 +214,9 @@ def main(argv=None) -> int:
     wanted = argv or list(SECTIONS)
     store = HERE / "results.json"
     results = json.loads(store.read_text()) if store.exists() else {}
+    for section in RENDERED:   # figures kept from an earlier run keep that run's machine and date
+        if isinstance(results.get(section), dict):
+            results[section].setdefault("_run", _run_of(results, section))
     results["_pinning"] = pin_one_core()
     results["_machine"] = machine()
     results["_date"] = datetime.date.today().isoformat()
@@ -209,6 +230,7 @@ def main(argv=None) -> int:
         module.run(fresh)
         if name not in fresh:  # a benchmark that filled the dict flat: file it under its section
             fresh = {name: fresh}
+        fresh[name]["_run"] = {k: results[f"_{k}"] for k in ("machine", "date", "pinning")}
         results.update(fresh)
         print(f"   {name}: {time.perf_counter() - t:.0f} s", flush=True)
         store.write_text(json.dumps(results, indent=1, default=float))  # keep what is done

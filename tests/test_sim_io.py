@@ -40,7 +40,7 @@ def test_folder_form_and_same_seed_same_recording(tmp_path):
         name = f"frames/{i:06d}.png"
         assert (a / name).read_bytes() == (b / name).read_bytes()
     rows = list(csv.reader((a / "truth.csv").open()))
-    assert len(rows) == 4 and rows[1][-1] == ""
+    assert len(rows) == 4 and rows[1][rows[0].index("ms")] == ""
 
 
 def test_cached_recording(tmp_path, monkeypatch):
@@ -83,3 +83,52 @@ def test_a_recording_that_was_not_simulated_is_never_replaced(tmp_path, capsys):
     assert (lab / "patient7.bag").read_bytes() == b"precious" and (lab / "robot.json").read_text() == "{}"
     assert main(args + ["--overwrite"]) == 0 and not (lab / "patient7.bag").exists()
     assert main(args + ["--seed", "1"]) == 0     # simulated before (truth.csv): replaced without asking
+
+
+def test_truth_holds_the_exact_tip_in_the_camera_frame(tmp_path):
+    """truth.csv's tip_x, tip_y, tip_z (left camera frame, m) project through K, D with
+    OpenCV onto its tip_u, tip_v, and are robot.tool_tip through the TRUE hand-eye and joints."""
+    import cv2
+
+    from graphtrack.geometry.camera import load_calibration
+    from graphtrack.robot.kinematics import link_transforms
+
+    out = simulate(tmp_path / "rec", "structured", frames=5, seed=3, size=SIZE, form="folder", progress=False)
+    rows = list(csv.DictReader((out / "truth.csv").open()))
+    xyz = np.array([[float(r[k]) for k in ("tip_x", "tip_y", "tip_z")] for r in rows])
+    uv = np.array([[float(r["tip_u"]), float(r["tip_v"])] for r in rows])
+    cam = load_calibration(out / "camera_calibration.yaml").left
+    proj = cv2.projectPoints(xyz, np.zeros(3), np.zeros(3), cam.K, cam.dist)[0][:, 0]
+    assert np.allclose(proj, uv, atol=1e-6)
+    sim = Simulation("structured", 5, seed=3, size=SIZE)
+    tip = sim.robot.tool_tip
+    L = sim.E_he @ link_transforms(sim.robot, sim.q_true)[:, tip.link]
+    assert np.allclose(xyz, L[:, :3, :3] @ np.asarray(tip.position) + L[:, :3, 3], atol=1e-12)
+
+
+@pytest.mark.parametrize("noise_free", [True, False])
+def test_3d_tip_error_is_against_the_exact_tip(tmp_path, noise_free):
+    """tip_error_3d_mm of the kinematics (E = handeye.yaml) is |E tip(q~) - exact tip|, the
+    joint readings' wrist noise included: 0 on a noise-free recording."""
+    import json
+
+    from graphtrack.io.handeye import load_handeye
+    from graphtrack.robot.kinematics import link_transforms
+
+    out = simulate(tmp_path / "rec", "tissue", frames=6, seed=5, size=SIZE, form="folder", progress=False,
+                   noise_free=noise_free)
+    assert main(["track", str(out), "--out", str(tmp_path / "o"), "--estimator", "kinematics", "--quiet"]) == 0
+    got = np.array([float(r["tip_mm"]) for r in csv.DictReader((tmp_path / "o" / "truth_errors.csv").open())])
+    sim = Simulation("tissue", 6, seed=5, size=SIZE, noise_free=noise_free)
+    tip = sim.robot.tool_tip
+    E = load_handeye(out / "handeye.yaml")
+    L = E @ link_transforms(sim.robot, sim.q_read)[:, tip.link]
+    placed = L[:, :3, :3] @ np.asarray(tip.position) + L[:, :3, 3]
+    exact = np.array([[float(r[k]) for k in ("tip_x", "tip_y", "tip_z")]
+                      for r in csv.DictReader((out / "truth.csv").open())])
+    want = 1e3 * np.linalg.norm(placed - exact, axis=1)
+    assert np.allclose(got, want, atol=1e-6)
+    if noise_free:
+        assert np.all(got < 1e-6)
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert m["tip_error_3d_mm"]["mean"] == pytest.approx(want.mean(), abs=1e-6)

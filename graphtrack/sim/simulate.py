@@ -12,8 +12,9 @@ where it is: E_t . base_T_link4(q~_t) = camera_T_link4_true(t). It absorbs
 the hand-eye error and the biases and noise of joints 1-3; the (small) noise
 of the wrist joints 4-6 and the jaw is NOT absorbed, so E_t . FK(q~_t) places
 the jaws slightly off. truth.csv holds E_t (translation m, quaternion x, y, z, w)
-and the TRUE tip: robot.tool_tip through E_he . base_T_link7(q_t), projected
-with distortion into the RAW image (tip_u, tip_v; NaN when behind the camera).
+and the TRUE tip: robot.tool_tip through E_he . base_T_link7(q_t), in the left
+camera frame (tip_x, tip_y, tip_z, m) and projected with distortion into the RAW
+image (tip_u, tip_v; NaN when behind the camera); ms is empty.
 handeye.yaml holds the NOMINAL Delta . E_he (Delta: 2-5 mm, 1-3 deg).
 labels.csv: the true tip + N(0, 1.2 px) labelling noise, omitted when the
 tip is outside the image, behind a tissue flap, or hidden by the shaft or
@@ -51,7 +52,7 @@ from graphtrack.sim.scene import SCENES, make_scene, tool_primitives
 FPS = 30.0
 T0 = 1_600_000_000.0
 MIN_SIZE = 64
-TRUTH_COLUMNS = "frame,stamp,tx,ty,tz,qx,qy,qz,qw,tip_u,tip_v,ms"
+TRUTH_COLUMNS = "frame,stamp,tx,ty,tz,qx,qy,qz,qw,tip_u,tip_v,ms,tip_x,tip_y,tip_z"
 LABEL_NOISE_PX = 1.2
 #: randomized hand-eye error: |b| ~ U(0, 10) mm, |w| ~ U(0, 5) deg
 HANDEYE_RANDOM = ((0.0, 0.010), (0.0, 5.0))
@@ -200,7 +201,8 @@ class Simulation:
                 E = self.E_t[i]
                 q = matrix_to_quaternion(E[:3, :3])
                 vals = [stamp, *E[:3, 3], *q, *self.tip_uv[i]]
-                truth_file.write(f"{i}," + ",".join(repr(float(v)) for v in vals) + ",\n")
+                tip = ",".join(repr(float(v)) for v in self.tip_cam[i])
+                truth_file.write(f"{i}," + ",".join(repr(float(v)) for v in vals) + f",,{tip}\n")
             if labels is not None and visible:
                 labels[i] = self.tip_uv[i] + self.rng_label.normal(0, LABEL_NOISE_PX, 2)
             img_r = None
@@ -319,29 +321,41 @@ def cache_dir() -> Path:
     return (Path(root) if root else Path.home() / ".cache" / "graphtrack") / "sim"
 
 
-#: bumped when a cached recording's content changes (2: robot.json carries the markers' disc radius)
-CACHE_VERSION = 2
+#: bumped when a simulated recording's content changes, so that a recording kept from an
+#: older simulator is simulated again (2: robot.json carries the markers' disc radius;
+#: 3: truth.csv carries the exact tip in the camera frame, tip_x, tip_y, tip_z)
+CACHE_VERSION = 3
 #: bumped when a randomized recording's content or scenario.json changes (2: a shaft or tip
 #: sample counts as in view only when the camera images it, Camera.in_image)
 RANDOMIZED_VERSION = 2
 
 
-def cached_recording(scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
-                     progress: bool = True) -> Path:
-    """A simulated recording in the cache, simulated on first use (``.complete`` marks it done)."""
-    H, W = check_args(scene, frames, size)
-    final = cache_dir() / f"{scene}-{int(frames)}-{int(seed)}-{H}x{W}-v{CACHE_VERSION}"
-    if (final / ".complete").is_file():
+def simulated_once(path, **simulate_args) -> Path:
+    """``path`` holding :func:`simulate` (``simulate_args``)'s recording: simulated on first
+    use, re-used after (its ``.complete`` marker holds CACHE_VERSION), simulated again when
+    an older simulator wrote it. Simulated into a temporary sibling and renamed, so that
+    an interrupted run or a concurrent one never leaves half a recording at ``path``."""
+    final = Path(path)
+    done, version = final / ".complete", f"v{CACHE_VERSION}\n"
+    if done.is_file() and done.read_text() == version:
         return final
     tmp = final.with_name(final.name + f".tmp-{os.getpid()}")
     if tmp.exists():
         shutil.rmtree(tmp)
-    simulate(tmp, scene, frames, seed, (H, W), progress=progress)
-    (tmp / ".complete").write_text("ok\n")
-    if final.exists() and not (final / ".complete").is_file():
+    simulate(tmp, **simulate_args)
+    (tmp / ".complete").write_text(version)
+    if final.exists() and not (done.is_file() and done.read_text() == version):
         shutil.rmtree(final)
     try:
         os.replace(tmp, final)
     except OSError:  # another process finished first
         shutil.rmtree(tmp, ignore_errors=True)
     return final
+
+
+def cached_recording(scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
+                     progress: bool = True) -> Path:
+    """A simulated recording in the cache (:func:`cache_dir`), simulated on first use."""
+    H, W = check_args(scene, frames, size)
+    return simulated_once(cache_dir() / f"{scene}-{int(frames)}-{int(seed)}-{H}x{W}",
+                          scene=scene, frames=frames, seed=seed, size=(H, W), progress=progress)
