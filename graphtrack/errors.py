@@ -61,7 +61,15 @@ def read_yaml(path):
     import yaml
 
     class Loader(yaml.SafeLoader):
-        pass
+        def construct_mapping(self, node, deep=False):
+            seen = {}
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=True)
+                if isinstance(key, (str, int, float, bool)) and key in seen:
+                    raise InputError(f"{path}: key {key!r} appears twice (lines {seen[key]} and "
+                                     f"{key_node.start_mark.line + 1}): one would silently replace the other")
+                seen[key] = key_node.start_mark.line + 1
+            return super().construct_mapping(node, deep)
 
     Loader.add_constructor("tag:yaml.org,2002:opencv-matrix",
                            lambda loader, node: loader.construct_mapping(node, deep=True))
@@ -70,6 +78,32 @@ def read_yaml(path):
         return yaml.load(text, Loader=Loader)   # noqa: S506 - a SafeLoader with one more mapping tag
     except yaml.YAMLError as e:
         raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+
+
+def read_json(path):
+    """The parsed JSON of a configuration file (robot.json, a dVRK registration): ``//`` and
+    ``/* */`` comments outside strings dropped (dVRK files carry them); InputError naming
+    the file when it is not JSON or an object holds one key twice (which JSON parsers
+    resolve silently, the last one winning)."""
+    import json
+    import re
+
+    path = Path(path)
+    text = re.sub(r'("(?:\\.|[^"\\])*")|//[^\n]*|/\*.*?\*/', lambda m: m.group(1) or "", read_text(path),
+                  flags=re.S)
+
+    def unique(pairs):
+        keys = [k for k, _ in pairs]
+        twice = sorted({k for k in keys if keys.count(k) > 1})
+        if twice:
+            raise InputError(f"{path}: key {twice[0]!r} appears twice in one object: one would silently replace "
+                             "the other")
+        return dict(pairs)
+
+    try:
+        return json.loads(text, object_pairs_hook=unique)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{path}: not valid JSON (line {e.lineno}: {e.msg})") from None
 
 
 def is_number(v) -> bool:

@@ -25,3 +25,25 @@ def test_plain_list_and_data_mapping_read_alike():
 def test_bad_values_name_the_file_and_key(doc, match):
     with pytest.raises(InputError, match=match):
         number_list(doc, "K", "c.yaml", (3, 9), missing=" (hint)")
+
+
+def test_a_key_given_twice_is_refused_not_resolved_silently(tmp_path):
+    """YAML and JSON parsers let the last of two equal keys win; a configuration file with
+    one key twice is refused, naming the key (and for YAML its lines)."""
+    from graphtrack.errors import read_json, read_yaml
+
+    y = tmp_path / "handeye.yaml"
+    y.write_text("PSM1_tvec: [1, 2, 3]\nPSM1_rvec: [0, 0, 0]\nPSM1_tvec: [4, 5, 6]\n")
+    with pytest.raises(InputError, match=r"handeye.yaml: key 'PSM1_tvec' appears twice \(lines 1 and 3\)"):
+        read_yaml(y)
+    y.write_text("a: {x: 1, y: 2}\nb: {x: 3}\n")                  # equal keys in different mappings
+    assert read_yaml(y) == {"a": {"x": 1, "y": 2}, "b": {"x": 3}}
+    j = tmp_path / "robot.json"
+    j.write_text('{"DH_params": [], // a dVRK comment\n "tool_tip": {"link": 1}, "DH_params": [1]}')
+    with pytest.raises(InputError, match=r"robot.json: key 'DH_params' appears twice"):
+        read_json(j)
+    j.write_text('{"a": {"k": 1}, /* "a": 2 */ "b": {"k": "//not a comment"}}')
+    assert read_json(j) == {"a": {"k": 1}, "b": {"k": "//not a comment"}}
+    j.write_text('{"a": 1,}')
+    with pytest.raises(InputError, match=r"robot.json: not valid JSON \(line 1"):
+        read_json(j)

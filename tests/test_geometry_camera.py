@@ -207,3 +207,15 @@ def test_a_skew_is_dropped_with_a_note_by_what_it_moves(tmp_path):
     with pytest.raises(InputError, match=r"skew K\[0,1\] = 6 px is not supported: .* move the image's top and "
                                          r"bottom rows by 3\.09 px"):
         load_calibration(p)
+
+
+def test_undistort_refuses_an_image_of_another_size():
+    """The remap tables are the calibration's size: another image would come back cropped
+    or padded (a 2x frame as its top-left quarter), so it is refused, naming both sizes."""
+    cam = Camera(np.array([[100.0, 0, 80], [0, 100, 60], [0, 0, 1]]), np.array([0.1, 0, 0, 0, 0]), 120, 160)
+    assert cam.undistort(np.zeros((120, 160, 3), np.uint8)).shape == (120, 160, 3)
+    assert cam.undistort(np.zeros((120, 160), np.uint8), 0.5).shape == (60, 80)
+    with pytest.raises(ValueError, match=r"shape \(240, 320, 3\).*120 x 160.*2 times the size"):
+        cam.undistort(np.zeros((240, 320, 3), np.uint8))
+    with pytest.raises(ValueError, match="width and height swapped"):
+        cam.undistort(np.zeros((160, 120, 3), np.uint8))

@@ -310,3 +310,28 @@ def test_a_recording_assembled_from_ros_and_dvrk_files_tracks_as_the_original(tm
         runs.append(np.array([[float(r[k]) for k in ("tx", "ty", "tz", "qx", "qy", "qz", "qw", "tip_u", "tip_v")]
                               for r in rows]))
     np.testing.assert_allclose(runs[1], runs[0], atol=1e-9)
+
+
+def test_a_suspicious_baseline_is_said_where_it_is_written(stereo, tmp_path, capsys):
+    """The right camera's projection with the baseline's sign flipped: written (it may be
+    a rig wired that way) with the warning track would give, at the step that made it."""
+    left, right, *_ = stereo
+    doc = yaml.safe_load(right.read_text())
+    P = np.array(doc["projection_matrix"]["data"]).reshape(3, 4)
+    P[0, 3] = -P[0, 3]
+    doc["projection_matrix"]["data"] = P.ravel().tolist()
+    flipped = tmp_path / "right_flipped.yaml"
+    flipped.write_text(yaml.safe_dump(doc, sort_keys=False))
+    assert main(["calibration", "--out", str(tmp_path / "seq"), "--ros", str(left), str(flipped)]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "puts the right camera to the left of the left one" in err
+    assert main(["calibration", "--out", str(tmp_path / "ok"), "--ros", str(left), str(right)]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+def test_a_missing_registration_is_said_before_its_arm(stereo, tmp_path, capsys):
+    left, *_ = stereo
+    missing = tmp_path / "handeye_registration.json"      # a name that does not give the arm
+    assert main(["calibration", "--out", str(tmp_path / "seq"), "--ros", str(left),
+                 "--dvrk-registration", str(missing)]) == 2
+    assert capsys.readouterr().err.strip().endswith(f"{missing}: file not found")

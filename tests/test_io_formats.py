@@ -36,6 +36,20 @@ def test_handeye_roundtrip(tmp_path):
     np.testing.assert_allclose(load_handeye(tmp_path / "h.yaml"), T, atol=1e-12)
 
 
+@pytest.mark.parametrize("change, match", [
+    (lambda T: np.r_[np.c_[T[:3, :3], 1000 * T[:3, 3]], T[3:]], "mm from the base"),   # a translation in mm
+    (lambda T: np.diag([2.0, 2.0, 2.0, 1.0]), "not a finite rigid"),   # a scaled, not a rotation
+    (lambda T: T @ np.diag([1.0, 1.0, -1.0, 1.0]), "not a finite rigid"),   # a reflection
+    (lambda T: np.where(np.eye(4, dtype=bool), np.nan, T), "not a finite rigid"),
+    (lambda T: T[:3], "not a finite rigid"),
+])
+def test_save_handeye_refuses_what_load_handeye_would(tmp_path, change, match):
+    T = random_pose(np.random.default_rng(1))
+    with pytest.raises(InputError, match=match):
+        save_handeye(tmp_path / "h.yaml", change(T))
+    assert not (tmp_path / "h.yaml").exists()
+
+
 def test_handeye_single_arm_any_prefix_and_opencv_header(tmp_path):
     p = tmp_path / "handeye.yaml"
     p.write_text("%YAML:1.0\nPSM2_tvec: [1, 2, 3]\nPSM2_rvec: {data: [0, 0, 0]}\n")

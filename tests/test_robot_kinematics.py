@@ -117,3 +117,13 @@ def test_check_joints_rejects_wrong_length_and_nan():
         check_joints(robot, np.zeros(6), "frame 3")
     with pytest.raises(InputError, match="NaN"):
         check_joints(robot, np.array([0, 0, 0.1, 0, np.nan, 0, 0]))
+
+
+def test_dvrk_config_takes_the_features_robot_json_by_path(tmp_path):
+    robot = psm_large_needle_driver()
+    save_robot_json(tmp_path / "robot.json", robot)
+    data = resources.files("graphtrack") / "data" / "dvrk"
+    by_path = load_dvrk_config(data / "psm.json", data / "LARGE_NEEDLE_DRIVER_400006.json",
+                               features_from=str(tmp_path / "robot.json"))
+    assert by_path.tool_tip == load_robot_json(tmp_path / "robot.json").tool_tip
+    assert len(by_path.point_features) == len(robot.point_features) > 0

@@ -75,7 +75,16 @@ def test_a_frame_built_by_the_caller_is_checked_as_a_recordings_are(stereo):
         "joint_count": dataclasses.replace(f0, joints=f0.joints[:5]),
         "joint_range": dataclasses.replace(f0, joints=np.degrees(f0.joints) + 400.0),
         "image_size": dataclasses.replace(f0, image=f0.image[::2, ::2]),
+        # a caller's 16-bit, float, grey or BGRA array: refused, not tracked on an empty detection
+        "image_format": dataclasses.replace(f0, image=f0.image.astype(np.uint16) * 257),
     }
+    for image in (f0.image / 255.0, f0.image[:, :, 0], np.dstack([f0.image, f0.image[:, :, :1]])):
+        with pytest.raises(FrameError, match="8-bit BGR"):
+            pipe.step(dataclasses.replace(f0, image=image))
+    with pytest.raises(FrameError, match="not numbers"):
+        pipe.step(dataclasses.replace(f0, jaw=None))
+    with pytest.raises(FrameError, match="not a finite number"):
+        pipe.step(dataclasses.replace(f0, stamp="1.0"))
     for reason, frame in bad.items():
         with pytest.raises(FrameError) as e:
             pipe.step(frame)
@@ -87,7 +96,33 @@ def test_a_frame_built_by_the_caller_is_checked_as_a_recordings_are(stereo):
     # a right image of another size is not used: a left-only update, counted
     stereo_pipe = Pipeline(TrackingContext.of(rec), TrackOptions(estimator="pf", detection=CANNY))
     stereo_pipe.step(dataclasses.replace(f0, image_right=f0.image_right[::2, ::2]))
-    assert stereo_pipe.left_only == 1
+    stereo_pipe.step(dataclasses.replace(frames[1], image_right=frames[1].image_right.astype(np.float32)))
+    assert stereo_pipe.left_only == 2
+
+
+def test_tip_pixel_names_a_wrong_joint_vector_or_pose(stereo):
+    """tip_pixel takes Frame.q (the DH joints, then the jaw) and a 4x4 E; it agrees with
+    OpenCV's projection of the tip placed by forward kinematics."""
+    import cv2
+
+    from graphtrack.robot.kinematics import link_transforms
+    from graphtrack.track import tip_pixel
+
+    rec = open_recording(stereo)
+    ctx = TrackingContext.of(rec)
+    f0 = next(iter(rec.frames()))
+    E = ctx.handeye
+    tip = ctx.robot.tool_tip
+    L = E @ link_transforms(ctx.robot, f0.q)[tip.link]
+    p = L[:3, :3] @ np.asarray(tip.position) + L[:3, 3]
+    want = cv2.projectPoints(p[None], np.zeros(3), np.zeros(3), ctx.camera.K, ctx.camera.dist)[0][0, 0]
+    np.testing.assert_allclose(tip_pixel(ctx, f0.q, E), want, atol=1e-6)
+    with pytest.raises(ValueError, match=r"expected \(7,\): 6 DH joints then the jaw"):
+        tip_pixel(ctx, f0.joints, E)                       # the jaw left out
+    with pytest.raises(ValueError, match=r"expected \(7,\)"):
+        tip_pixel(ctx, np.concatenate([f0.q, [0.0]]), E)
+    with pytest.raises(ValueError, match="4x4"):
+        tip_pixel(ctx, f0.q, E[:3])
 
 
 def test_finish_returns_the_batch_refinement_track_writes(stereo, tmp_path):

@@ -21,10 +21,11 @@ import sys
 from pathlib import Path
 
 from graphtrack.commands.common import HelpFormatter, output_path
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, read_text
 from graphtrack.geometry.camera import load_calibration, save_calibration
 from graphtrack.io import calibration_import as ci
 from graphtrack.io import opencv_calibration as oc
+from graphtrack.io.consistency import calibration_notes
 from graphtrack.io.handeye import load_handeye, save_handeye
 from graphtrack.io.topics import ARMS
 
@@ -65,11 +66,10 @@ def _write_all(files: dict[Path, tuple]) -> None:
             try:
                 p.parent.mkdir(parents=True, exist_ok=True)
                 save(staged[p])
+                check(staged[p])
             except OSError as e:
                 raise InputError(f"{p}: cannot write ({e.strerror or e})") from None
-            try:
-                check(staged[p])
-            except InputError as e:
+            except InputError as e:   # what the writer or the tracker's reader refuses
                 msg = str(e).replace(str(staged[p]), str(p))
                 hint = f", its lengths read in {unit}" if any(k in msg for k in _LENGTH_KEYS) else ""
                 raise InputError(f"{msg} (written from {source}{hint})") from None
@@ -92,6 +92,7 @@ def _registration(args, R1):
     """(arm, camera-from-base) of --dvrk-registration, turned into the raw left camera's
     frame by R1 (None: kept in the rectified frame it was measured in)."""
     path = args.dvrk_registration
+    read_text(path)   # a missing or unreadable file is said before the arm its name would give
     named = ci.arm_of(path)
     if args.arm and named and args.arm != named:
         raise InputError(f"{path}: the registration of {named}, but --arm {args.arm}")
@@ -198,6 +199,8 @@ def _report(args, targets, calib, arm, R1, sources) -> None:
         print(f"wrote {targets['camera_calibration.yaml']}: {'stereo' if calib.stereo else 'mono'}, "
               f"{calib.left.width}x{calib.left.height}{', rectified' if args.rectified else ''}, from "
               f"{' and '.join(map(str, sources))}", file=sys.stderr)
+        for note in calibration_notes(calib, targets["camera_calibration.yaml"]):   # as track will warn
+            print(f"graphtrack: warning: {note}", file=sys.stderr)
         stale = Path(args.out) / "handeye.yaml"
         if arm is None and stale.exists():
             print(f"graphtrack: note: {stale} was left as it was; one converted from a registration with the "

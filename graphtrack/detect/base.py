@@ -34,6 +34,25 @@ OBSERVATION_MODELS = (
 POLAR_MODELS = ("canny", "endpoints-polar", "endpoint-intensities-polar", "line-intensities-polar")
 
 
+def detector_image(image) -> np.ndarray:
+    """``image`` as the detectors read it: uint8 (H, W) grey or (H, W, 3) BGR (a single
+    channel's third axis dropped, an alpha channel left out). ValueError naming what is
+    wrong for anything else: another dtype (a 16-bit or float image is not scaled here:
+    scale it to 0..255 first, e.g. ``(img >> 8).astype(np.uint8)`` for 16-bit), another
+    shape, or an empty image."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ValueError(f"detector expects an 8-bit image (uint8, 0..255), got {img.dtype}: scale it first, "
+                         "e.g. (img >> 8).astype(np.uint8) for 16-bit or (img * 255).astype(np.uint8) for 0..1")
+    if img.ndim == 3 and img.shape[2] in (1, 3, 4):
+        img = img[:, :, 0] if img.shape[2] == 1 else img[:, :, :3]
+    if not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
+        raise ValueError(f"detector expects an (H, W) grey or (H, W, 3) BGR image, got shape {img.shape}")
+    if min(img.shape[:2]) < 1:
+        raise ValueError(f"detector got an empty image (shape {img.shape})")
+    return img
+
+
 def _empty(*shape) -> np.ndarray:
     return np.zeros((0,) + shape, dtype=float)
 

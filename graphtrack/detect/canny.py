@@ -41,7 +41,7 @@ import cv2
 import numpy as np
 
 from graphtrack.detect.association import AssociationConfig, associate
-from graphtrack.detect.base import Detection
+from graphtrack.detect.base import Detection, detector_image
 from graphtrack.detect.hough import hough_lines, suppress
 from graphtrack.detect.line_refit import refit_lines
 from graphtrack.detect.markers import MarkerConfig, detect_markers
@@ -79,17 +79,11 @@ class CannyConfig:
     association: AssociationConfig = field(default_factory=AssociationConfig)
 
 
-def _gray(image: np.ndarray) -> np.ndarray:
-    img = np.asarray(image)
-    if img.dtype != np.uint8:
-        raise ValueError(f"detector expects a uint8 image, got {img.dtype}")
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
+def _gray(img: np.ndarray) -> np.ndarray:
+    """(H, W) grey of a :func:`~graphtrack.detect.base.detector_image`."""
     if img.ndim == 2:
         return np.ascontiguousarray(img)
-    if img.ndim == 3 and img.shape[2] in (3, 4):
-        return cv2.cvtColor(np.ascontiguousarray(img[:, :, :3]), cv2.COLOR_BGR2GRAY)
-    raise ValueError(f"detector expects an (H, W) or (H, W, 3) image, got shape {img.shape}")
+    return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY)
 
 
 class CannyDetector:
@@ -190,6 +184,7 @@ class CannyDetector:
         gates for this call (e.g. widened after a tracking loss)."""
         t_start = time.perf_counter()
         cfg = self.config
+        image = detector_image(image)
         gray = _gray(image)
         H, W = gray.shape
         det = Detection()

@@ -50,7 +50,7 @@ import numpy as np
 import torch
 
 from graphtrack.detect.association import AssociationConfig, associate
-from graphtrack.detect.base import Detection
+from graphtrack.detect.base import Detection, detector_image
 from graphtrack.detect.learned_net import ARCH, LineNet
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.segments import ExtractConfig, extract_segments
@@ -208,16 +208,13 @@ class LearnedDetector:
         the sub-pixel refinement reads the raw frame through the distortion. Why:
         docs/decisions/stereo-detection.md."""
         t0 = time.perf_counter()
-        img = np.asarray(image)
+        img = detector_image(image)
         if camera is not None and not np.any(np.ravel(camera.dist)):
             camera = None                 # no distortion: raw pixels are undistorted ones
         markers = self._markers(img, camera)
         maps = self.heatmaps(img, camera)
         if maps is None:
-            H = None
-            if img.ndim >= 2 and min(img.shape[:2]) >= 1:
-                H = np.zeros(img.shape[:2], np.float32)
-            return Detection(heatmap=H, markers=markers, ms=(time.perf_counter() - t0) * 1e3)
+            return Detection(heatmap=np.zeros(img.shape[:2], np.float32), markers=markers, ms=(time.perf_counter() - t0) * 1e3)
         L, J = maps
         h, w = img.shape[:2]
         seg_s, _ = extract_segments(L, J, self.extract)

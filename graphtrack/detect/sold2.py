@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from graphtrack.detect.association import AssociationConfig, associate
-from graphtrack.detect.base import Detection
+from graphtrack.detect.base import Detection, detector_image
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.errors import InputError
 from graphtrack.geometry.lines import line_through
@@ -90,13 +90,8 @@ class Sold2Detector:
         """Detect on an undistorted BGR uint8 frame; ``predicted_lines`` (2, 2) gate the
         association, ``association`` overrides the configured gates for this call."""
         t0 = time.perf_counter()
-        img = np.asarray(image)
-        if img.ndim == 3 and img.shape[2] >= 3 and img.dtype == np.uint8:
-            gray = cv2.cvtColor(np.ascontiguousarray(img[:, :, :3]), cv2.COLOR_BGR2GRAY)
-        elif img.ndim == 2:
-            gray = np.clip(img, 0, 255).astype(np.uint8)
-        else:
-            return Detection(ms=(time.perf_counter() - t0) * 1e3)
+        img = detector_image(image)
+        gray = img if img.ndim == 2 else cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_BGR2GRAY)
         h, w = gray.shape
         markers = detect_markers(img, self.marker_config) if (self.markers and img.ndim == 3) else np.zeros((0, 2))
         hs, ws = max(1, int(round(h * self.scale))), max(1, int(round(w * self.scale)))

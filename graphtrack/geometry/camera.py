@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from graphtrack.errors import InputError, is_number, number_list, read_yaml
+from graphtrack.geometry.se3 import is_rotation
 
 
 @dataclass
@@ -148,7 +149,13 @@ class Camera:
         return self._maps[scale]
 
     def undistort(self, image: np.ndarray, scale: float = 1.0) -> np.ndarray:
-        """Raw image -> undistorted image (bilinear), of ``self.scaled(scale)``'s size and K."""
+        """Raw image -> undistorted image (bilinear), of ``self.scaled(scale)``'s size and K.
+        ValueError unless ``image`` is this camera's size (height x width)."""
+        hw = tuple(np.shape(image)[:2])
+        if np.ndim(image) not in (2, 3) or hw != (self.height, self.width):
+            hint = size_mismatch_hint(hw, (self.height, self.width)) if len(hw) == 2 else ""
+            raise ValueError(f"image of shape {np.shape(image)} (height, width[, channels]); the camera's "
+                             f"is {self.height} x {self.width}{hint}")
         m1, m2 = self.undistort_maps(scale)
         return cv2.remap(image, m1, m2, cv2.INTER_LINEAR)
 
@@ -330,7 +337,7 @@ def load_calibration(path: str | Path) -> Calibration:
     if any(k in doc for k in ("K2", "D2", "R", "T")):   # one stereo key: all four are needed
         right = cam("K2", "D2")
         R = _matrix(doc, "R", 9, path).reshape(3, 3)
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
+        if not is_rotation(R):
             raise InputError(f"{path}: key 'R' is not a rotation matrix (right-from-left, row-major)")
         T = _matrix(doc, "T", 3, path) / 1000.0
         if not MIN_BASELINE_MM <= 1e3 * np.linalg.norm(T) <= 1000.0:

@@ -189,6 +189,22 @@ def average_rotations(R: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     return project_to_so3(np.einsum("n,nij->ij", w, R))
 
 
+def is_rotation(R, atol: float = 1e-4) -> bool:
+    """Whether R is a finite 3x3 rotation matrix: R R^T = I within ``atol``, det R > 0 (no
+    reflection)."""
+    R = np.asarray(R, dtype=float)
+    return (R.shape == (3, 3) and bool(np.all(np.isfinite(R))) and np.allclose(R @ R.T, np.eye(3), atol=atol)
+            and np.linalg.det(R) > 0)
+
+
+def is_rigid(T, atol: float = 1e-4) -> bool:
+    """Whether T is a finite 4x4 rigid transform: a rotation (:func:`is_rotation`), a finite
+    translation and the last row 0 0 0 1."""
+    T = np.asarray(T, dtype=float)
+    return (T.shape == (4, 4) and bool(np.all(np.isfinite(T))) and np.allclose(T[3], [0, 0, 0, 1])
+            and is_rotation(T[:3, :3], atol))
+
+
 def project_to_so3(M: np.ndarray) -> np.ndarray:
     """The rotation nearest a 3x3 matrix M in Frobenius norm: U diag(1, 1, det(U V^T)) V^T."""
     U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))

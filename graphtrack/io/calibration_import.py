@@ -28,15 +28,15 @@ Every function raises InputError naming the file and the field.
 """
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError, is_number, number_list, one_line, read_text, read_yaml
+from graphtrack.errors import InputError, is_number, number_list, one_line, read_json, read_yaml
 from graphtrack.geometry.camera import Calibration, Camera
+from graphtrack.geometry.se3 import is_rigid, is_rotation
 from graphtrack.io.bag import open_bag
 from graphtrack.io.recording import is_ros2_bag
 
@@ -101,7 +101,7 @@ def _ros_camera(doc: dict, path: Path) -> RosCamera:
     D5[: min(5, D.size)] = D[:5]
     R = _field(doc, "rectification_matrix", 9, path).reshape(3, 3)
     R = np.eye(3) if not np.any(R) else R
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
+    if not is_rotation(R):
         raise InputError(f"{path}: field 'rectification_matrix' is not a rotation matrix")
     P = _field(doc, "projection_matrix", 12, path).reshape(3, 4)
     if not np.any(P):
@@ -256,10 +256,7 @@ def read_dvrk_registration(path: str | Path, unit: str = "m") -> Registration:
     if re.search(r"registration-dvrk\.json$", path.name, re.IGNORECASE):
         raise InputError(f"{path}: the registration in the dVRK's camera axes (x and y turned); give its twin "
                          f"{re.sub('(?i)-dvrk[.]json$', '-open-cv.json', path.name)}, in OpenCV's axes")
-    try:
-        doc = json.loads(read_text(path))
-    except json.JSONDecodeError as e:
-        raise InputError(f"{path}: not valid JSON ({e.msg}, line {e.lineno})") from None
+    doc = read_json(path)
     frame = doc.get("base-frame") if isinstance(doc, dict) else None
     M = frame.get("transform") if isinstance(frame, dict) else None
     if M is None:
@@ -269,9 +266,7 @@ def read_dvrk_registration(path: str | Path, unit: str = "m") -> Registration:
             or not all(isinstance(r, list) and len(r) == 4 and all(is_number(x) for x in r) for r in M)):
         raise InputError(f"{path}: 'base-frame' -> 'transform' must be a 4x4 list of numbers")
     T = np.asarray(M, dtype=float)
-    R = T[:3, :3]
-    if not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-4) \
-            or np.linalg.det(R) <= 0:
+    if not is_rigid(T):
         raise InputError(f"{path}: 'base-frame' -> 'transform' is not a rigid transform (a rotation, a "
                          "translation, last row 0 0 0 1)")
     T[:3, 3] *= UNITS_M[unit]

@@ -31,24 +31,34 @@ def consistency_notes(rec) -> list[str]:
     if rec.labels_right is not None and not rec.stereo:
         notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
                      "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
-    if rec.calibration.stereo and left_of_left(rec.calibration.T):
-        t_mm = np.round(1e3 * np.ravel(rec.calibration.T), 2).tolist()
-        notes.append(f"{rec.path / 'camera_calibration.yaml'}: T = {t_mm} mm puts the right camera to the left "
-                     "of the left one (X_right = R X_left + T has T_x < 0 for a right camera on the right): "
-                     "are T's sign or the left and right images swapped?")
-    for key, cam in (("K1", rec.calibration.left), ("K2", rec.calibration.right)):
-        if cam is not None and off_centre(cam):
-            notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s principal point "
-                         f"({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) px lies outside the middle half of the "
-                         f"{cam.width}x{cam.height} image: a calibration of another image size?")
-        if cam is not None and not 0.8 <= cam.K[0, 0] / cam.K[1, 1] <= 1.25:
-            notes.append(f"{rec.path / 'camera_calibration.yaml'}: {key}'s focal lengths fx = {cam.K[0, 0]:g}, "
-                         f"fy = {cam.K[1, 1]:g} px differ by a factor {cam.K[0, 0] / cam.K[1, 1]:.2g}: pixels "
-                         "that are not square (interlaced fields), or a K of another image size in one direction?")
+    notes += calibration_notes(rec.calibration, rec.path / "camera_calibration.yaml")
     right_dir = rec.path / "frames_right"
     if isinstance(rec.source, FolderSource) and right_dir.exists() and not right_dir.is_dir():
         notes.append(f"{right_dir}: not a folder, so the recording has no right images; "
                      "tracking the left image only")
+    return notes
+
+
+def calibration_notes(calib, path) -> list[str]:
+    """Lines on a camera calibration (``path``: its camera_calibration.yaml) that looks wrong
+    but may be right: a baseline with the right camera on the left, a principal point far
+    off centre, focal lengths far apart. ``graphtrack calibration`` prints them as it writes
+    the file, ``track`` as it reads it."""
+    notes = []
+    if calib.stereo and left_of_left(calib.T):
+        t_mm = np.round(1e3 * np.ravel(calib.T), 2).tolist()
+        notes.append(f"{path}: T = {t_mm} mm puts the right camera to the left "
+                     "of the left one (X_right = R X_left + T has T_x < 0 for a right camera on the right): "
+                     "are T's sign or the left and right images swapped?")
+    for key, cam in (("K1", calib.left), ("K2", calib.right)):
+        if cam is not None and off_centre(cam):
+            notes.append(f"{path}: {key}'s principal point "
+                         f"({cam.K[0, 2]:.0f}, {cam.K[1, 2]:.0f}) px lies outside the middle half of the "
+                         f"{cam.width}x{cam.height} image: a calibration of another image size?")
+        if cam is not None and not 0.8 <= cam.K[0, 0] / cam.K[1, 1] <= 1.25:
+            notes.append(f"{path}: {key}'s focal lengths fx = {cam.K[0, 0]:g}, "
+                         f"fy = {cam.K[1, 1]:g} px differ by a factor {cam.K[0, 0] / cam.K[1, 1]:.2g}: pixels "
+                         "that are not square (interlaced fields), or a K of another image size in one direction?")
     return notes
 
 

@@ -2,7 +2,8 @@
 sees it, from a recording (:meth:`graphtrack.io.recording.Recording.frames`) or built
 by a caller (:meth:`graphtrack.track.Pipeline.step`).
 
-:func:`frame_problem`: the left image's size against the calibration's ImageSize, the
+:func:`frame_problem`: the left image's size against the calibration's ImageSize, its
+format (8-bit BGR: a caller's 16-bit, float or grey array is refused, not left undetected), the
 joint count against robot.json's DH joints, finite joints (and jaw, when the tool has
 one), joints within a real arm's range (:mod:`graphtrack.io.joint_units`), and an
 image whose bottom rows were cut off; a FrameError with the skip reason, or None.
@@ -20,38 +21,62 @@ from graphtrack.io.joint_units import out_of_range
 
 def frame_problem(frame, n_joints: int | None, size: tuple[int, int], bounds, has_jaw: bool) -> FrameError | None:
     """Why ``frame`` cannot be tracked (a FrameError naming the frame and the reason:
-    ``image_size``, ``joint_count``, ``nan_joints``, ``joint_range``, ``flat_image``), or
+    ``image_size``, ``image_format``, ``joint_count``, ``nan_joints``, ``joint_range``, ``flat_image``), or
     None. ``size``: (height, width) of ImageSize; ``n_joints`` None: not checked;
     ``bounds``: |q| bounds per joint (None: the loose bound); ``has_jaw``: the jaw must be
     finite and within range too."""
     h, w = size
-    image = frame.image
-    joints = np.asarray(frame.joints, dtype=float).ravel()
+    image = None if frame.image is None else np.asarray(frame.image)
+    try:
+        joints, jaw = np.asarray(frame.joints, dtype=float).ravel(), float(frame.jaw)
+    except (TypeError, ValueError):
+        return FrameError(frame.index, "nan_joints", f"joint reading {frame.joints!r}, jaw {frame.jaw!r}: "
+                          "not numbers (the jaw is NaN for a tool without a gripper)")
     if image is None or image.ndim < 2 or image.shape[:2] != (h, w):
         got = "no image" if image is None else f"image is {image.shape[1]}x{image.shape[0]} px" if image.ndim >= 2 \
             else f"image has shape {image.shape}"
         hint = size_mismatch_hint(image.shape[:2], (h, w)) if image is not None and image.ndim >= 2 else ""
         return FrameError(frame.index, "image_size", f"{got}, camera_calibration.yaml ImageSize says {w}x{h}{hint}")
+    if (why := image_format(image)) is not None:
+        return FrameError(frame.index, "image_format", why)
     if n_joints is not None and joints.size != n_joints:
         return FrameError(frame.index, "joint_count",
                           f"joint reading has {joints.size} values, robot.json has {n_joints} DH joints")
-    if not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(frame.jaw)):
-        return FrameError(frame.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {frame.jaw}")
-    if (why := out_of_range(joints, frame.jaw, bounds, has_jaw)) is not None:
+    if not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(jaw)):
+        return FrameError(frame.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {jaw}")
+    if (why := out_of_range(joints, jaw, bounds, has_jaw)) is not None:
         return FrameError(frame.index, "joint_range", f"joint reading {why}")
     if (why := flat_image(image)) is not None:
         return FrameError(frame.index, "flat_image", why)
     return None
 
 
+def image_format(image: np.ndarray) -> str | None:
+    """Why ``image`` (of the right size) is not a frame's 8-bit BGR image (H x W x 3 uint8,
+    what every reader decodes to), or None."""
+    if image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3:
+        return None
+    if image.dtype != np.uint8:
+        how = ("scale it to 0..255 first, e.g. (img >> 8).astype(np.uint8) for 16-bit, "
+               "(img * 255).astype(np.uint8) for 0..1")
+    elif image.ndim == 2 or image.shape[2] == 1:
+        how = "convert it, e.g. cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)"
+    else:
+        how = "convert it to BGR, e.g. cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)"
+    return f"image is {image.dtype} of shape {image.shape}, frames are 8-bit BGR (H x W x 3 uint8): {how}"
+
+
 def right_problem(frame, size: tuple[int, int]) -> str | None:
     """Why the frame's right image is unusable (``image_size``: not ``size``;
-    ``same_as_left``: a copy of the left image), or None (also without a right image)."""
+    ``image_format``: not 8-bit BGR; ``same_as_left``: a copy of the left image), or None
+    (also without a right image)."""
     right = frame.image_right
     if right is None:
         return None
     if right.ndim < 2 or right.shape[:2] != tuple(size):
         return "image_size"
+    if image_format(right) is not None:
+        return "image_format"
     return "same_as_left" if same_image(frame.image, right) else None
 
 

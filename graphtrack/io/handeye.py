@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 
 from graphtrack.errors import InputError, number_list, read_yaml
-from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw
+from graphtrack.geometry.se3 import bw_to_matrix, is_rigid, matrix_to_bw
 from graphtrack.io.topics import ARMS, TopicSelection, handeye_arm
 
 
@@ -89,8 +89,21 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
 
 
 def save_handeye(path: str | Path, T: np.ndarray, arm: str = "PSM1") -> None:
-    """Write a 4x4 camera-from-base transform (metres) as handeye.yaml (mm, rad)."""
-    bw = matrix_to_bw(np.asarray(T, dtype=float))
+    """Write a 4x4 camera-from-base transform (metres) as handeye.yaml (mm, rad).
+
+    InputError naming the file and key, writing nothing, for what :func:`load_handeye`
+    would refuse to read back: T not a finite rigid 4x4 transform (a rotation, last row
+    0 0 0 1), or its translation outside MIN_TRANSLATION_MM..MAX_TRANSLATION_MM once in mm
+    (a T in mm, or in m but almost 0)."""
+    T = np.asarray(T, dtype=float)
+    if not is_rigid(T):
+        raise InputError(f"{path}: T is not a finite rigid 4x4 transform (a rotation, a translation, last row "
+                         f"0 0 0 1): {np.array2string(T, precision=4)}")
+    mm = 1000.0 * float(np.linalg.norm(T[:3, 3]))
+    if not MIN_TRANSLATION_MM <= mm <= MAX_TRANSLATION_MM:
+        raise InputError(f"{path}: key '{arm}_tvec' would put the camera {mm:.4g} mm from the base, expected "
+                         f"{MIN_TRANSLATION_MM:g} to {MAX_TRANSLATION_MM:g} mm (T's translation is in metres)")
+    bw = matrix_to_bw(T)
     doc = {f"{arm}_tvec": [float(v) * 1000.0 for v in bw[:3]],
            f"{arm}_rvec": [float(v) for v in bw[3:]]}
     Path(path).write_text(yaml.safe_dump(doc, default_flow_style=None, sort_keys=False))

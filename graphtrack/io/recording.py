@@ -40,14 +40,13 @@ holds a line for the user. See :mod:`graphtrack.io.bag`.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Iterator
 
 import numpy as np
 
-from graphtrack.errors import FrameError, InputError, read_text
+from graphtrack.errors import FrameError, InputError, read_json
 from graphtrack.geometry.camera import Calibration, load_calibration
 from graphtrack.io.bag import BagSource
 from graphtrack.io.consistency import consistency_notes
@@ -194,15 +193,12 @@ class Recording:
             why = right_problem(item, (h, w))
             if why is not None:
                 item.image_right = None
-                self.right_refused[why] += 1
+                self.right_refused[why] = self.right_refused.get(why, 0) + 1
             yield item
 
 
 def _dh_count(robot_json: Path) -> int | None:
-    try:
-        doc = json.loads(read_text(robot_json))
-    except ValueError as e:
-        raise InputError(f"{robot_json}: not valid JSON ({str(e).splitlines()[0]})") from None
+    doc = read_json(robot_json)
     dh = doc.get("DH_params") if isinstance(doc, dict) else None
     return len(dh) if isinstance(dh, list) and dh else None
 

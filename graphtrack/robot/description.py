@@ -20,13 +20,12 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from graphtrack.errors import InputError, is_number, read_text
+from graphtrack.errors import InputError, is_number, read_json
 
 
 @dataclass(frozen=True)
@@ -289,21 +288,12 @@ def _joint_limits(d: _Doc, raw, n_dh: int, n_j: int) -> np.ndarray | None:
     return limits
 
 
-def _read_json(path: Path) -> dict:
-    path = Path(path)
-    text = read_text(path)
-    # dVRK files carry // and /* */ comments; strip them outside strings.
-    text = re.sub(r'("(?:\\.|[^"\\])*")|//[^\n]*|/\*.*?\*/', lambda m: m.group(1) or "", text, flags=re.S)
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(f"{path}: not valid JSON (line {e.lineno}: {e.msg})") from None
 
 
 def load_robot_json(path: str | Path) -> RobotDescription:
     """Read robot.json; raise InputError naming file and field on any problem."""
     path = Path(path)
-    return parse_robot(_read_json(path), path)
+    return parse_robot(read_json(path), path)
 
 
 def save_robot_json(path: str | Path, robot: RobotDescription) -> None:
@@ -320,7 +310,7 @@ def _json_kind(v) -> str:
 
 
 def _dvrk_dh(path: Path) -> tuple[list[DHJoint], dict]:
-    doc = _read_json(path)
+    doc = read_json(path)
     d = _Doc(path)
     if not isinstance(doc, dict):
         d.fail("document", f"expected a JSON object (a dVRK configuration file), got {_json_kind(doc)}")
@@ -337,7 +327,7 @@ def _dvrk_dh(path: Path) -> tuple[list[DHJoint], dict]:
 
 
 def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
-                     features_from: RobotDescription | None = None,
+                     features_from: RobotDescription | str | Path | None = None,
                      has_gripper: bool | None = None) -> RobotDescription:
     """Combine a dVRK arm file (joints 1-3) and tool file (joints 4-6) into one chain.
 
@@ -345,7 +335,7 @@ def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
     ``psm-large-needle-driver.json`` layout), its first three are taken and the
     tool file supplies the rest: its 3 joints, or the last 3 of a whole-PSM file's 6
     (any other count is refused). The dVRK files hold no visual features:
-    ``features_from`` (e.g. a robot.json) supplies them. The jaw exists when
+    ``features_from`` (a RobotDescription, or a robot.json's path) supplies them. The jaw exists when
     the tool file has a ``jaw`` section unless ``has_gripper`` overrides.
     """
     arm, _ = _dvrk_dh(Path(arm_file))
@@ -356,7 +346,7 @@ def load_dvrk_config(arm_file: str | Path, tool_file: str | Path,
         raise InputError(f"{tool_file}: DH: expected the tool's 3 joints (4-6) or a whole PSM's 6, got {len(tool)}")
     tool = tool[-3:]
     grip = has_gripper if has_gripper is not None else "jaw" in tool_doc
-    base = features_from
+    base = load_robot_json(features_from) if isinstance(features_from, (str, Path)) else features_from
     if base is None:
         return RobotDescription(arm[:3] + tool, grip)
     return RobotDescription(arm[:3] + tool, grip, base.point_features, base.shaft_features,

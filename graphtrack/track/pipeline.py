@@ -257,11 +257,14 @@ class Pipeline:
         not after the last stepped frame's), or None."""
         robot, cam = self.ctx.robot, self.ctx.camera
         problem = frame_problem(frame, robot.n_dh, (cam.height, cam.width), self._joint_bounds, robot.has_gripper)
-        if problem is None and not (np.isfinite(frame.stamp)
-                                    and (self.last_stamp is None or frame.stamp > self.last_stamp)):
-            problem = FrameError(frame.index, "stamp_order",
-                                 f"stamp {frame.stamp!r} is not after the previous frame's {self.last_stamp!r}")
-        return problem
+        if problem is not None:
+            return problem
+        if not (isinstance(frame.stamp, (int, float, np.number)) and np.isfinite(frame.stamp)):
+            return FrameError(frame.index, "stamp_order", f"stamp {frame.stamp!r} is not a finite number (seconds)")
+        if self.last_stamp is not None and not frame.stamp > self.last_stamp:
+            return FrameError(frame.index, "stamp_order",
+                              f"stamp {frame.stamp!r} is not after the previous frame's {self.last_stamp!r}")
+        return None
 
     def step(self, frame: Frame):
         """Track one frame: (Estimate, Detection | None, Observation | None, per-stage ms).
@@ -306,8 +309,18 @@ class Pipeline:
 
 
 def tip_point(ctx: TrackingContext, q: np.ndarray, E: np.ndarray) -> np.ndarray:
-    """The tool tip in the LEFT camera frame, E . tip(q), (3,) m (NaN if the robot has none)."""
-    feats = base_features(ctx.robot, q)
+    """The tool tip in the LEFT camera frame, E . tip(q), (3,) m (NaN if the robot has none).
+
+    q: the full joint vector (``Frame.q``: the DH joints, then the jaw for a tool with a
+    gripper); E: 4x4, metres. ValueError naming the expected length or shape otherwise."""
+    robot = ctx.robot
+    q = np.asarray(q, dtype=float)
+    if q.shape != (robot.n_joints,):
+        raise ValueError(f"q has shape {q.shape}, expected ({robot.n_joints},): {robot.n_dh} DH joints"
+                         f"{' then the jaw (Frame.q)' if robot.has_gripper else ''}")
+    if np.shape(E) != (4, 4):
+        raise ValueError(f"E has shape {np.shape(E)}, expected a 4x4 transform (metres)")
+    feats = base_features(robot, q)
     return np.full(3, np.nan) if feats.tip is None else np.asarray(feats.transformed(E).tip, float)
 
 
