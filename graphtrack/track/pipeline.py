@@ -39,7 +39,9 @@ class TrackOptions:
     the observation model (:data:`graphtrack.detect.base.OBSERVATION_MODELS`);
     seed: of the observation's RANSAC draws (the estimator's own is in
     ``estimation``; the CLI and the studies set both from one seed); tip_feature:
-    a point feature to evaluate instead of robot.json's tool_tip; stereo: use the
+    a point feature to evaluate instead of robot.json's tool_tip (:func:`track` applies
+    it; a :class:`Pipeline` and :func:`tip_pixel` use ``ctx.robot.tool_tip``, which a
+    caller replaces the same way); stereo: use the
     right image too when the recording has one (False: ``--mono``, left only).
     """
 
