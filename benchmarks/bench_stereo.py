@@ -1,30 +1,25 @@
-"""Stereo against mono (issue #19): accuracy, speed of the stereo pipeline, the stereo PF step.
+"""Stereo against mono (issue #19): accuracy. Its speed is bench_stereo_speed.py.
 
     python benchmarks/run_all.py stereo      # pinned to one core; writes results.json / RESULTS.md
 
-Accuracy. Simulated stereo recordings from held-out seeds (SEED0.., see there; 150
-frames, 540x960, alternating structured and tissue) are tracked with the learned
-detector and line-intensities by the smoother and the batch, once with both images
-and once with ``--mono``. Per frame, against truth.csv: the 3-D tip error (mm, the
-exact tip against E_t . tip(q~)) and the 2-D tip error in the left raw image (px).
+Simulated stereo recordings from held-out seeds (SEED0.., see there; 150 frames,
+540x960, alternating structured and tissue) are tracked with the learned detector and
+line-intensities by the smoother and the batch, once with both images and once with
+``--mono``. Per frame, against truth.csv: the 3-D tip error (mm: the tip from the joint
+readings placed by E_t, E_t . tip(q~), against the exact tip, truth.csv's tip_x, tip_y,
+tip_z) and the 2-D tip error in the left raw image (px, against the exact tip_u, tip_v).
 Reported: each view's mean over all frames, the ratio stereo / mono, and the paired
 difference stereo - mono with its moving-block bootstrap interval
 (:func:`graphtrack.eval.metrics.paired_difference`, as bench_accuracy.py), per estimator.
-
-Speed. The stereo smoother runs above are timed by ``track`` itself: frames/s in the
-steady state (1000 / mean per-frame ms of frames 1.., as bench_track.py reads
-``fps_steady``), median over the recordings. PF: one predict + update of 1000
-particles with both images' observations (~500 shaft pixels, 4 markers and the shaft end each), as
-bench_pf.py times the mono step (median of 200 after 20 warm-up steps).
+These figures do not depend on the machine (the speed section's do), so this section
+may be re-run on any machine.
 """
 from __future__ import annotations
 
 import csv
 import json
 import os
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -86,55 +81,8 @@ def _accuracy(out: dict, work: Path) -> None:
             lines.append(f"| {est} | {name} ({unit}) | {np.nanmean(m):.3f} | {np.nanmean(s):.3f} | {ratio:.2f} | "
                          f"{pooled['mean']:+.3f} [{pooled['low']:+.3f}, {pooled['high']:+.3f}] |")
             out[f"{est}_{name}_diff_per_recording"] = [d["mean"] for d in diffs]
-    fps = [runs[r, s_, "smoother", True]["fps_steady"] for r, s_ in RECORDINGS]
-    out["fps_540_learned_stereo_smoother"] = float(statistics.median(fps))
-    out["fps_540_learned_mono_smoother"] = float(statistics.median(
-        runs[r, s_, "smoother", False]["fps_steady"] for r, s_ in RECORDINGS))
     out["left_only_frames"] = int(sum(runs[k].get("frames_left_only", 0) for k in runs))
     out.setdefault("tables", {})["stereo vs mono, learned + line-intensities, against truth.csv"] = "\n".join(lines)
-
-
-def _pf(out: dict) -> None:
-    from graphtrack.detect.base import Observation
-    from graphtrack.estimate.options import PARTICLES
-    from graphtrack.estimate.particle_filter import ParticleFilter
-    from graphtrack.geometry.camera import Camera
-    from graphtrack.io.context import TrackingContext
-    from graphtrack.robot.features import base_features
-    from graphtrack.sim.stereo import rig, to_right
-    from graphtrack.sim.synthetic import HANDEYE_ERROR, Scene, make_scene, observe, sequence
-
-    scene = make_scene()
-    cam = scene.camera
-    C = to_right(*rig())
-    right = Camera(cam.K.copy(), np.zeros(5), cam.height, cam.width)
-    ctx = TrackingContext(scene.robot, cam, scene.E0, right, C)
-    E_true = scene.true_E(HANDEYE_ERROR)
-    seq = sequence(64, seed=0, scene=scene, pixels_per_edge=250, outliers=0.05, marker_model="point",
-                   shaft_end_noise=1.0)
-    rng = np.random.default_rng(0)
-    frames = []
-    for f in seq.frames:
-        # all four markers in each image, visible or not, as bench_pf.py
-        m = base_features(scene.robot, f.q).transformed(E_true).points
-        mk = cam.project_undistorted(m) + rng.standard_normal((4, 2))
-        left = Observation("line-intensities", pixels=f.pixels, markers=mk, edge_ids=np.arange(2),
-                           shaft_end=f.shaft_end)
-        o = observe(Scene(scene.robot, right, scene.E0), f.q, C @ E_true, rng, pixels_per_edge=250,
-                    outliers=0.05, marker_model="point", shaft_end_noise=1.0)
-        mr = right.project_undistorted(m @ C[:3, :3].T + C[:3, 3]) + rng.standard_normal((4, 2))
-        frames.append((f.frame(), left, Observation("line-intensities", pixels=o.pixels, markers=mr,
-                                                    edge_ids=np.arange(2), shaft_end=o.shaft_end)))
-    for stereo in (True, False):
-        pf = ParticleFilter(ctx, particles=PARTICLES, seed=0)
-        ts = []
-        for k in range(220):
-            fr, ol, orr = frames[k % len(frames)]
-            t0 = time.perf_counter()
-            pf.step(fr, ol, orr if stereo else None)
-            if k >= 20:
-                ts.append(time.perf_counter() - t0)
-        out["pf_step_ms_1000_" + ("stereo" if stereo else "mono")] = 1e3 * statistics.median(ts)
 
 
 def run(results: dict) -> dict:
@@ -145,7 +93,6 @@ def run(results: dict) -> dict:
     limit_threads(1)
     out = results.setdefault("stereo", {})
     out["recordings"] = [f"{s}:{seed}" for s, seed in RECORDINGS]
-    _pf(out)
     with tempfile.TemporaryDirectory() as tmp:
         _accuracy(out, Path(tmp))
     return out
