@@ -38,11 +38,13 @@ def test_refine_video_draws_the_refined_poses(rec, tmp_path, monkeypatch):
     from graphtrack.track import TrackOptions, overlay_run, track
 
     drawn: dict[str, list] = {}
+    titles: dict[str, str | None] = {}
 
     class Recorder:   # OverlayWriter's interface; the file appears on close, as a video's would
-        def __init__(self, path, ctx, labels=None, labels_right=None):
+        def __init__(self, path, ctx, labels=None, labels_right=None, title=None):
             self.path = path
             drawn[path.name] = []
+            titles[path.name] = title
 
         def write(self, frame, estimate, detection=None, observation=None, tip=None, right=(None, None)):
             drawn[self.path.name].append((frame.index, np.array(estimate.E)))
@@ -65,6 +67,7 @@ def test_refine_video_draws_the_refined_poses(rec, tmp_path, monkeypatch):
     assert max(np.abs(E - F).max() for (_, E), F in zip(refined, rows["E"])) < 1e-9   # csv precision
     assert max(np.abs(E - F).max() for (_, E), F in zip(streamed, rows["E"])) > 1e-6   # the online ones
     assert (out / "overlay.mp4").read_bytes() == b"video" and not (out / overlay_run.REFINED_NAME).exists()
+    assert titles == {"overlay.mp4": None, overlay_run.REFINED_NAME: "refined"}   # the video says which it shows
 
 
 def test_draw_overlay_marks_tip_label_detection(rec):
@@ -85,8 +88,12 @@ def test_draw_overlay_marks_tip_label_detection(rec):
     img = draw_overlay(blank, ctx, frame.q, ctx.handeye, det, obs, tip, np.array([240.0, 135.0]))
     assert img.shape == blank.shape and not np.shares_memory(img, blank)
     u, v = np.round(tip).astype(int)
-    assert tuple(img[v, u]) == (0, 0, 255)            # red estimated tip
+    assert tuple(img[v, u + 5]) == (0, 0, 255) and tuple(img[v - 5, u]) == (0, 0, 255)   # red ring, radius 5
     assert tuple(img[135, 240]) == (255, 255, 255)    # white label cross centre
+    # an estimate on its label: both show, the cross inside the ring
+    same = draw_overlay(blank, ctx, frame.q, ctx.handeye, tip_uv=np.array([240.0, 135.0]),
+                        label_uv=np.array([240.0, 135.0]))
+    assert tuple(same[135, 240]) == (255, 255, 255) and tuple(same[135, 245]) == (0, 0, 255)
     assert (img[..., 1] > 150).any()                  # green skeleton / yellow edges drawn
     mapped = ctx.camera.distort_pixels(np.array([100.0, 135.0]))
     x, y = np.round(mapped).astype(int)

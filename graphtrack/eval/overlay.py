@@ -8,7 +8,10 @@ Per frame (BGR colours):
 - cyan dots (2 px radius): the observation's pixel sets (E_e / E_l) of the pixel models;
 - magenta circles: detected marker centroids; magenta tick across the shaft: its
   detected end (:mod:`graphtrack.detect.shaft_end`);
-- red dot: the estimated tool tip; white cross: the labelled tip (labels.csv).
+- red ring: the estimated tool tip, drawn over the white cross of the labelled tip
+  (labels.csv), so that both show where they coincide;
+- the caption (frame number; "left" / "right" in a stereo video, "refined" for poses
+  refined after the run), white on a dark band, legible on a white bench.
 
 Detections live in UNDISTORTED pixels; everything is mapped to raw pixels with
 :meth:`graphtrack.geometry.camera.Camera.distort_pixels`, lines as polylines
@@ -130,13 +133,21 @@ def draw_overlay(image: np.ndarray, ctx, q: np.ndarray, E: np.ndarray, detection
         for uv in cam.distort_pixels(np.asarray(markers, float).reshape(-1, 2)):
             if np.all(np.isfinite(uv)):
                 cv2.circle(img, tuple(_pts(uv)), 6 * 16, MAGENTA, 2, cv2.LINE_AA, 4)
-    if tip_uv is not None and np.all(np.isfinite(tip_uv)):
-        cv2.circle(img, tuple(_pts(tip_uv)), 4 * 16, RED, -1, cv2.LINE_AA, 4)
     if label_uv is not None:
         draw_cross(img, label_uv, WHITE, 7, 2)
+    if tip_uv is not None and np.all(np.isfinite(tip_uv)):
+        cv2.circle(img, tuple(_pts(tip_uv)), 5 * 16, RED, 2, cv2.LINE_AA, 4)
     if text:
-        cv2.putText(img, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, WHITE, 1, cv2.LINE_AA)
+        draw_caption(img, text)
     return img
+
+
+def draw_caption(img: np.ndarray, text: str) -> None:
+    """``text`` at the top left, white on a dark band (legible on any background)."""
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.5, 1)
+    x0, y0, x1, y1 = 4, 20 - th - 4, min(img.shape[1], 12 + tw), min(img.shape[0], 20 + base + 2)
+    img[max(0, y0):y1, x0:x1] = (img[max(0, y0):y1, x0:x1] * 0.35).astype(np.uint8)
+    cv2.putText(img, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, WHITE, 1, cv2.LINE_AA)
 
 
 class OverlayWriter:
@@ -150,7 +161,8 @@ class OverlayWriter:
     Stereo (``ctx.stereo``): each video frame is left | right side by side (twice
     the width), the right panel drawn through the right camera (right_T_left . E,
     K2, D2) with the right image's ``right`` = (Detection, Observation) and
-    ``labels_right``; a frame without its right image has a black right panel.
+    ``labels_right``; a frame without a usable right image has a black right panel
+    that says so (metrics.json's ``right_skipped_reasons`` count why).
     """
 
     def __init__(self, path: str | Path, ctx, labels: dict | None = None, fps: float | None = None,
@@ -176,7 +188,8 @@ class OverlayWriter:
               observation: Observation | None = None, tip_uv_raw=None, right=(None, None)) -> None:
         E = None if estimate is None else estimate.E
         label = self.labels.get(int(frame.index))
-        text = f"frame {frame.index}" + (f"  {self.title}" if self.title else "")
+        text = f"frame {frame.index}" + ("  left" if self.right_ctx is not None else "") + \
+            (f"  {self.title}" if self.title else "")
         img = draw_overlay(frame.image, self.ctx, frame.q, E, detection, observation, tip_uv_raw, label, text)
         if self.right_ctx is not None:
             img = np.hstack([img, self._right_panel(frame, E, right, img.shape)])
@@ -185,7 +198,9 @@ class OverlayWriter:
     def _right_panel(self, frame, E, right, shape) -> np.ndarray:
         """The right image's overlay (black without the right image), resized to ``shape``."""
         if frame.image_right is None:
-            return np.zeros(shape, np.uint8)
+            img = np.zeros(shape, np.uint8)
+            draw_caption(img, "right: no usable right image in this frame")
+            return img
         Er = None if E is None else self.ctx.right_T_left @ E
         tip = None
         feats = base_features(self.ctx.robot, frame.q)
@@ -193,7 +208,7 @@ class OverlayWriter:
             p = feats.transformed(Er).tip
             tip = self.right_ctx.camera.project_raw(p) if p[2] > 0 else None
         img = draw_overlay(frame.image_right, self.right_ctx, frame.q, Er, right[0], right[1], tip,
-                           self.labels_right.get(int(frame.index)), "right")
+                           self.labels_right.get(int(frame.index)), "right" + (f"  {self.title}" if self.title else ""))
         return img if img.shape == shape else cv2.resize(img, (shape[1], shape[0]))
 
     def close(self) -> None:

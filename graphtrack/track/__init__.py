@@ -171,17 +171,17 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     grey = None   # the greyscale-frames test's verdict (_grey_markers), None until a frame decides
     extra = list(pipe.estimator.extra_columns)  # the estimator's own columns
     overlay = RunOverlay(out / "overlay.mp4", ctx, rec, pipe.estimator.offline) if video else None
+    right_images = ctx.stereo and (pipe.needs_images or video)   # kinematics reads them for its video only
     run = RunLog()
     total = len(rec) if max_frames is None else min(len(rec), max_frames)
     bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
                disable=quiet) if progress else None
     t_wall = time.perf_counter()
     with TrajectoryWriter(out, extra_columns=extra) as writer:
-        for item, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=ctx.stereo and pipe.needs_images):
-            if isinstance(item, FrameError):
-                run.skipped.skip(item, quiet)
+        for frame, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=right_images):
+            if isinstance(frame, FrameError):   # a frame the recording could not give
+                run.skipped.skip(frame, quiet)
                 continue
-            frame = item
             try:
                 est, det, obs, ms = pipe.step(frame)   # checks the frame first (Pipeline.check)
             except FrameError as e:
@@ -214,7 +214,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     if bar is not None:
         bar.close()
     if overlay is not None:   # offline: drawn again with the refined poses
-        overlay.finish(run.rows, run.tips, ctx.stereo and pipe.needs_images, progress and not quiet)
+        overlay.finish(run.rows, run.tips, right_images, progress and not quiet)
     result = _metrics(path, out, options, rec, ctx, pipe, run, wall, notes, quiet)
     write_json(out / "metrics.json", result)   # strict JSON: NaN -> null
     require_tracked(result, out)   # no tracked frame: an error, never a silent success

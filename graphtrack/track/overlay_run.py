@@ -36,8 +36,8 @@ class RunOverlay:
         self.writer = self._writer(self.path)
         self.kept: dict[int, tuple] | None = {} if offline else None   # index -> (detection, observation, right)
 
-    def _writer(self, path: Path) -> OverlayWriter:
-        return OverlayWriter(path, self.ctx, labels=self.rec.labels, labels_right=self.rec.labels_right)
+    def _writer(self, path: Path, title: str | None = None) -> OverlayWriter:
+        return OverlayWriter(path, self.ctx, labels=self.rec.labels, labels_right=self.rec.labels_right, title=title)
 
     def write(self, frame, estimate: Estimate, detection, observation, tip, right) -> None:
         """Draw a tracked frame with its streamed answer (offline: keep what a redraw needs)."""
@@ -57,7 +57,7 @@ class RunOverlay:
         refined = {int(r[0]): (r[4], tip) for r, tip in zip(rows, tips)}
         last = max(refined)
         tmp = self.path.with_name(REFINED_NAME)
-        with self._writer(tmp) as writer, tqdm(total=len(refined), desc="overlay, refined", unit="frame",
+        with self._writer(tmp, "refined") as writer, tqdm(total=len(refined), desc="overlay, refined", unit="frame",
                                                file=sys.stderr, disable=not progress) as bar:
             for frame in self.rec.frames(right=right):
                 if isinstance(frame, FrameError) or int(frame.index) not in refined:
