@@ -229,6 +229,12 @@ def test_robot_without_shaft_tracks_from_markers(command, base, tmp_path, capsys
     assert all(math.isfinite(v) for v in (doc["tip_error_px"]["mean"], doc["translation_error_mm"]["mean"]))
     assert any("tracking from the markers alone" in w for w in doc["recording_warnings"])
     assert_outputs_sane(out)
+    # the markers are used from the first frame (they were held back 30 frames for a shaft
+    # that a tool without shaft features never shows: a 12-frame run stayed at the prior)
+    import csv
+    with (out / "trajectory.csv").open() as f:
+        tx = [r["tx"] for r in csv.DictReader(f)]
+    assert len(set(tx)) > 1, "E never moved from handeye.yaml"
 
 
 @pytest.mark.parametrize("mutate, extra, why", [

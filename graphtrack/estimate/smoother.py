@@ -74,7 +74,7 @@ class FixedLagSmootherEstimator:
     Options: lag (s), smoother ("isam2" | "batch"), markers, prior_sigma_b/_w,
     start_up (the LM initialisation of the first frame with detections),
     start_up_iterations, start_up_wait (frames of markers-only detections held
-    back before starting without the shaft),
+    back before starting without the shaft; none for a tool without shaft features),
     motion_sigma_b/_w (per frame), iterations (extra iSAM2 passes per frame
     while the newest state still moves more than ``converge_tol``),
     relinearize_threshold, settled_relinearize_threshold and settle (s; see
@@ -131,7 +131,7 @@ class FixedLagSmootherEstimator:
         self.prev_key = None
         self.started = not start_up
         self.start_up_iterations = int(start_up_iterations)
-        self.start_up_wait = int(start_up_wait)
+        self.start_up_wait = int(start_up_wait) if ctx.robot.shaft_features else 0
         self.waited = 0
         self.last = gtsam.Pose3(self.E0)
         self.t0 = None
