@@ -161,6 +161,22 @@ def test_the_plot_names_its_seed(rec, tmp_path, monkeypatch):
     assert "the run with seed 3" in title and legend == ["pf / line-intensities"]
 
 
+def test_every_curve_of_the_plot_can_be_told_apart(rec, tmp_path, monkeypatch):
+    """Four estimators x two observation models: no two curves share colour and line style
+    (matplotlib's default cycle repeats after 10)."""
+    from matplotlib.figure import Figure
+
+    seen = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, path, **kw: seen.append(
+        ([(tuple(ln.get_color()), str(ln.get_linestyle())) for ln in fig.axes[0].get_lines()],
+         fig.axes[0].get_yscale())))
+    out = tmp_path / "study"
+    assert _compare([rec], out, "--estimators", "kinematics,pf,smoother,batch", "--observations",
+                    "line-intensities,line-intensities-polar", "--max-frames", "6", "--particles", "64") == 0
+    styles, _ = seen[-1]
+    assert len(styles) == 7 and len(set(styles)) == 7
+
+
 def test_a_recording_without_labels_is_named_in_the_notes(rec, tmp_path):
     """Without labels.csv every accuracy entry is n/a: table.md says why instead of
     leaving a table of n/a and no plot unexplained."""

@@ -226,6 +226,7 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
         labels = read_labels(lab_path)
         fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
         drawn = 0
+        colours, styles = _curve_styles(mine)
         for c in mine:
             res = cell_status(c)["result"]
             diag = res.get("image_diagonal_px")
@@ -238,10 +239,14 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
                 continue
             est = c.row[1]   # "(mono)" marked in a study over both views
             ax.plot(frames, accumulated_error(errs), label=est if c.observation is None else f"{est} / {c.observation}",
-                    lw=1.4)
+                    lw=1.4, color=colours[est], ls=styles[c.observation])
             drawn += 1
         ax.set_xlabel("frame")
         ax.set_ylabel("accumulated tip error (% of diagonal)")
+        finals = [float(ln.get_ydata()[-1]) for ln in ax.get_lines() if math.isfinite(ln.get_ydata()[-1])]
+        if finals and min(finals) > 0 and max(finals) / min(finals) > 5:   # kinematics would flatten the rest
+            ax.set_yscale("log")
+            ax.set_ylabel("accumulated tip error (% of diagonal, log scale)")
         repeated = any(c.recording == rec and c.repeat > 0 for c in cells)   # table.csv: their seeds' mean
         ax.set_title(f"{rec}: running mean of the 2-D tool-tip error"
                      + (f"\n(repeated estimators: the run with seed {mine[0].options['seed']})" if repeated else ""),
@@ -255,6 +260,22 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
         plt.close(fig)
         written.append(p)
     return written
+
+
+#: line styles told apart in a legend, one per observation model (six), solid without one
+_STYLES = ("-", "--", ":", "-.", (0, (5, 1, 1, 1, 1, 1)), (0, (8, 2)))
+
+
+def _curve_styles(cells: list[Cell]) -> tuple[dict, dict]:
+    """(colour per estimator row label, line style per observation model) for one plot:
+    every curve's pair differs (matplotlib's default cycle repeats its 10 colours)."""
+    import matplotlib
+
+    ests = list(dict.fromkeys(c.row[1] for c in cells))
+    obs = list(dict.fromkeys(c.observation for c in cells))
+    palette = matplotlib.colormaps["tab10" if len(ests) <= 10 else "tab20"]
+    return ({e: palette(i % palette.N) for i, e in enumerate(ests)},
+            {o: "-" if o is None else _STYLES[i % len(_STYLES)] for i, o in enumerate(obs)})
 
 
 def _runtime(results: list[dict]) -> tuple[float, float]:
