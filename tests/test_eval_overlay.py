@@ -31,6 +31,26 @@ def test_track_writes_overlay_with_one_frame_per_tracked_frame(rec, tmp_path):
     cap.release()
 
 
+def test_a_run_stopped_early_keeps_the_frames_drawn_so_far(rec, tmp_path, monkeypatch):
+    """Ctrl-C at frame 3, before the writer has the 10 frames it reads the frame rate from:
+    overlay.mp4 holds the 3 frames trajectory.csv has rows for (the held frames were lost)."""
+    import graphtrack.track as T
+
+    real = T.tip_pixel
+
+    def tip_then_stop(ctx, q, E, calls=[]):
+        calls.append(1)
+        if len(calls) > 3:
+            raise KeyboardInterrupt
+        return real(ctx, q, E)
+
+    monkeypatch.setattr(T, "tip_pixel", tip_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        T.track(rec, tmp_path / "out", T.TrackOptions(estimator="kinematics"), video=True, progress=False, quiet=True)
+    assert video_frame_count(tmp_path / "out" / "overlay.mp4") == 3
+    assert len((tmp_path / "out" / "trajectory.csv").read_text().splitlines()) == 1 + 3
+
+
 def test_refine_video_draws_the_refined_poses(rec, tmp_path, monkeypatch):
     """batch: the video's frames carry the poses trajectory.csv ends with (the refined ones),
     drawn in a second pass; the streamed video is what an interrupted run keeps."""

@@ -14,6 +14,7 @@ TrackOptions, Pipeline, tip_pixel, ...); what a run collects as it goes,
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import sys
 import time
@@ -177,7 +178,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     bar = tqdm(total=total, desc=f"track {options.estimator}", unit="frame", file=sys.stderr,
                disable=quiet) if progress else None
     t_wall = time.perf_counter()
-    with TrajectoryWriter(out, extra_columns=extra) as writer:
+    with TrajectoryWriter(out, extra_columns=extra) as writer, overlay or contextlib.nullcontext():
         for frame, t_decode, t0 in read_frames(rec, max_frames, run, bar, right=right_images):
             if isinstance(frame, FrameError):   # a frame the recording could not give
                 run.skipped.skip(frame, quiet)

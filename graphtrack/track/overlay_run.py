@@ -11,6 +11,7 @@ the first pass are kept for the second (a few kB per frame); the images are read
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import sys
@@ -38,6 +39,17 @@ class RunOverlay:
 
     def _writer(self, path: Path, title: str | None = None) -> OverlayWriter:
         return OverlayWriter(path, self.ctx, labels=self.rec.labels, labels_right=self.rec.labels_right, title=title)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, error, tb) -> None:
+        """Leaving the run by an exception (Ctrl-C, a full disk): the streamed video is
+        closed as far as it got, the frames held back for its frame rate included, as
+        trajectory.csv keeps the rows written; :meth:`finish` ends a run that completed."""
+        if kind is not None:
+            with contextlib.suppress(Exception):   # the exception that ended the run is the one to report
+                self.writer.close()
 
     def write(self, frame, estimate: Estimate, detection, observation, tip, right) -> None:
         """Draw a tracked frame with its streamed answer (offline: keep what a redraw needs)."""
