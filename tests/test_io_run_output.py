@@ -43,3 +43,26 @@ def test_batch_judged_by_its_online_smoother_and_no_search_never():
     assert not lock_refused({"estimator_report": {}, "frames_with_detections": 12})
     assert lock_problem({"estimator_report": {}}, "SEQ") is None
     require_lock({}, "SEQ")
+
+
+def test_a_study_folder_and_a_run_folder_are_not_mixed(tmp_path):
+    """compare/demo into a track or detect run's folder, or track/detect into a study's, is
+    refused naming what is there (they mixed table.md and runs/ with trajectory.csv)."""
+    from graphtrack.io.run_output import prepare_run_dir, refuse_other_runs
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "trajectory.csv").write_text("frame\n")
+    (run / "detections.csv").write_text("frame\n")
+    with pytest.raises(InputError, match=r"run: holds another command's run \(trajectory.csv, detections.csv\); "
+                                         "a study folder is its own"):
+        refuse_other_runs(run, "study")
+    refuse_other_runs(tmp_path / "new", "study")            # a new folder, or one with other files: fine
+    study = tmp_path / "study"
+    study.mkdir()
+    (study / "study.json").write_text("{}")
+    refuse_other_runs(study, "study")
+    for overwrite in (False, True):
+        with pytest.raises(InputError, match=r"study: holds a study \(study.json"):
+            prepare_run_dir(study, overwrite)
+    assert (study / "study.json").is_file()

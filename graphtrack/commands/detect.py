@@ -36,7 +36,7 @@ from graphtrack.detect.pixel_sets import endpoints_set, line_set
 from graphtrack.errors import FrameError, InputError
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.outdir import writable_dir
-from graphtrack.io.run_output import outside_recording, prepare_run_dir
+from graphtrack.io.run_output import DETECT_FILES, outside_recording, prepare_run_dir
 from graphtrack.io.recording import open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.video import StampedVideoWriter
@@ -85,7 +85,6 @@ def start_gate(detector):
 
 
 #: the files a detect run writes (another run's are refused unless --overwrite)
-DETECT_FILES = ("detections.csv", "detections_right.csv", "detections.mp4")
 
 
 def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), video: bool = False,

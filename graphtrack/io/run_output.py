@@ -3,7 +3,8 @@
 - :func:`prepare_run_dir`: a folder holding another run's files (``RUN_FILES``) is
   refused unless ``overwrite``, which deletes exactly those files first (other
   files are the user's and are kept), so a new, shorter run never sits beside an
-  old run's overlay.mp4 or truth_errors.csv.
+  old run's overlay.mp4 or truth_errors.csv; a study's folder (study.json) is refused.
+  :func:`refuse_other_runs`: a study's folder holds no track, refine or detect run.
 - :func:`write_json`: metrics.json as strict JSON (RFC 8259): NaN and infinities
   become ``null``; like every :func:`write_text`, written to a temporary file and
   renamed, so a full disk leaves the old file or none, never half of one.
@@ -30,6 +31,20 @@ RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", 
              "trajectory.csv.tmp", "trajectory.tum.tmp", "metrics.json.tmp", "truth_errors.csv.tmp")
 
 
+#: the files ``graphtrack detect`` writes into its output folder
+DETECT_FILES = ("detections.csv", "detections_right.csv", "detections.mp4")
+
+
+def refuse_other_runs(out: str | Path, what: str) -> None:
+    """InputError when ``out`` holds a ``track``/``refine`` or ``detect`` run's files: a
+    folder of ``what`` (a study) is its own, and is not mixed with another command's."""
+    out = Path(out)
+    found = [n for n in RUN_FILES + DETECT_FILES if (out / n).exists()] if out.is_dir() else []
+    if found:
+        raise InputError(f"{out}: holds another command's run ({', '.join(found)}); a {what} folder is its "
+                         "own: choose another --out")
+
+
 def prepare_run_dir(out: str | Path, overwrite: bool = False, files=None) -> Path:
     """Check ``out`` holds no other run's files (``files``, default RUN_FILES: those
     ``track`` writes); with ``overwrite`` delete them.
@@ -37,6 +52,8 @@ def prepare_run_dir(out: str | Path, overwrite: bool = False, files=None) -> Pat
     Raises InputError ``"<out>: holds another run's files (...); use --overwrite ..."``.
     """
     out = Path(out)
+    if (out / "study.json").is_file():
+        raise InputError(f"{out}: holds a study (study.json, from compare or demo); choose another --out")
     found = [n for n in (RUN_FILES if files is None else files) if (out / n).exists()] if out.is_dir() else []
     if found and not overwrite:
         raise InputError(f"{out}: holds another run's files ({', '.join(found)}); use --overwrite to "

@@ -39,6 +39,7 @@ from pathlib import Path
 from graphtrack.detect.observe import SEEDED_MODELS
 from graphtrack.errors import InputError
 from graphtrack.estimate import estimator_class
+from graphtrack.io.run_output import refuse_other_runs
 from graphtrack.study.cells import CELL_OPTION_DEFAULTS, CELL_OPTIONS, STUDY_VERSION, Cell, StudyOptions, view_flags
 from graphtrack.study.execute import check_ray_address, run_local, run_ray
 from graphtrack.study.report import is_done, plot_accumulated, recording_notes, write_tables
@@ -185,6 +186,7 @@ def run_study(paths: list[str], out: str | Path, options: StudyOptions, workers:
     cells, notes = plan([str(p) for p in paths], options, out, names)
     if not cells:
         raise InputError("no estimator/observation combination to run")
+    refuse_other_runs(out, "study")
     check_study_folder(out, options, cells)
     if video is not None:
         for c in cells:
