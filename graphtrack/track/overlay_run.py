@@ -15,6 +15,7 @@ import contextlib
 import dataclasses
 import os
 import sys
+import time
 from pathlib import Path
 
 from tqdm import tqdm
@@ -51,12 +52,15 @@ class RunOverlay:
             with contextlib.suppress(Exception):   # the exception that ended the run is the one to report
                 self.writer.close()
 
-    def write(self, frame, estimate: Estimate, detection, observation, tip, right) -> None:
-        """Draw a tracked frame with its streamed answer (offline: keep what a redraw needs)."""
+    def write(self, frame, estimate: Estimate, detection, observation, tip, right) -> float:
+        """Draw a tracked frame with its streamed answer (offline: keep what a redraw needs);
+        returns the milliseconds it took."""
+        t = time.perf_counter()
         self.writer.write(frame, estimate, detection, observation, tip, right)
         if self.kept is not None:
             det_r, obs_r = right
             self.kept[int(frame.index)] = (_slim(detection), observation, (_slim(det_r), obs_r))
+        return 1e3 * (time.perf_counter() - t)
 
     def finish(self, rows: list, tips: list, right: bool, progress: bool = False) -> None:
         """Close the streamed video; offline, draw every tracked frame again with its refined

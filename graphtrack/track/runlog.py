@@ -15,7 +15,8 @@ from graphtrack.errors import FrameError
 from graphtrack.io.frame import Frame
 from graphtrack.io.recording import Recording
 
-STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write")
+#: per-frame stages timed (``video``: drawing the overlay, not counted in the per-frame cost)
+STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write", "video")
 
 
 def warn(message: str, quiet: bool) -> None:
@@ -63,7 +64,8 @@ class RunLog:
 
     def summary(self, wall: float) -> dict:
         """Frame counts, median ms per stage, fps over the wall time and the steady state:
-        every per-frame cost (decode ... write) of frames 1.. (frame 0 also pays the
+        every per-frame cost (decode ... write; not the overlay video's drawing, so that runs
+        with and without ``--video`` compare) of frames 1.. (frame 0 also pays the
         start-up: the bag's joint pass, first use of the detector), no finish(); NaN (null in
         metrics.json) without a frame 1."""
         out = {"timing_ms_median": {s: float(np.median(v)) if v else 0.0 for s, v in self.stage_ms.items()},
