@@ -36,13 +36,17 @@ def test_target_maps():
 
 
 @pytest.mark.slow
-def test_train_command_tiny(tmp_path):
+def test_train_command_tiny(tmp_path, capsys):
+    import json
+
     from graphtrack.cli import main
     from graphtrack.detect.learned import LearnedDetector
 
     torch.set_num_threads(1)
     out = tmp_path / "w.pt"
-    assert main(["train", "--out", str(out), "--frames", "4", "--epochs", "1", "--batch", "4", "--quiet"]) == 0
+    assert main(["train", "--out", str(out), "--frames", "4", "--epochs", "1", "--batch", "4"]) == 0
+    summary = json.loads(next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("{")))
+    assert summary["data"]["frames"] == 4                  # an object, not JSON text inside the JSON
     det = LearnedDetector(out)
     d = det.detect(np.random.default_rng(0).integers(0, 255, (540, 960, 3), dtype=np.uint8))
     assert d.heatmap.shape == (540, 960)

@@ -82,6 +82,15 @@ def test_kinematics_video_draws_the_right_image(recordings, tmp_path):
     assert ok and np.abs(panel - right[40:]).mean() < 8.0             # the right image, not black
 
 
+def test_detect_names_every_file_it_wrote(recordings, tmp_path, capsys):
+    from graphtrack.cli import main
+
+    st, _ = recordings
+    assert main(["detect", str(st), "--out", str(tmp_path / "d"), "--detector", "canny", "--max-frames", "2"]) == 0
+    assert capsys.readouterr().out.strip().endswith(f"wrote {tmp_path / 'd'}/detections.csv, detections_right.csv")
+    assert (tmp_path / "d" / "detections_right.csv").is_file()
+
+
 def test_missing_right_image_falls_back_to_left_only(recordings, tmp_path):
     import shutil
 

@@ -154,6 +154,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
     if right_csv is not None:
         right_csv.close()
     return {"frames": n, "frames_skipped": sum(skipped.values()), "skipped_reasons": dict(skipped),
+            "right": right_csv is not None,
             # the first reason met holds the first skipped frame's message
             "first_skip": next(iter(skipped.examples.values()), ""),
             "ms_median": float(np.median(ms_all)) if ms_all else float("nan")}
@@ -178,7 +179,7 @@ def run(args) -> int:
         why = f": {counts}; first: {res['first_skip']}" if res["frames_skipped"] else ""
         print(f"{res['frames']} frames ({res['frames_skipped']} skipped{why}), detector median "
               f"{res['ms_median']:.1f} ms; wrote {args.out}/detections.csv"
-              + (", detections.mp4" if args.video else ""))
+              + (", detections_right.csv" if res["right"] else "") + (", detections.mp4" if args.video else ""))
     return 0
 
 

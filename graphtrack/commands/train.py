@@ -129,6 +129,6 @@ def run(args) -> int:
         save(net, out, meta)
     except OSError as e:
         raise InputError(f"{out}: cannot write the weights ({e.strerror or e})") from None
-    log(json.dumps(meta))
+    log(json.dumps({**meta, "data": info}))   # the weights keep meta flat (weights_only loading): data as text
     log(f"wrote {out}")
     return 0
