@@ -52,6 +52,23 @@ def test_cached_recording(tmp_path, monkeypatch):
     assert (p / "truth.csv").stat().st_mtime_ns == stamp
 
 
+def test_a_recording_an_older_simulator_wrote_is_simulated_again(tmp_path):
+    """simulated_once re-uses its recording while the simulator's CACHE_VERSION holds, and
+    simulates it again when an older one wrote it (its truth.csv lacked the exact tip)."""
+    from graphtrack.sim.simulate import CACHE_VERSION, simulated_once
+
+    args = dict(scene="structured", frames=2, seed=4, size=SIZE, progress=False)
+    p = simulated_once(tmp_path / "rec", **args)
+    assert (p / ".complete").read_text() == f"v{CACHE_VERSION}\n"
+    stamp = (p / "truth.csv").stat().st_mtime_ns
+    assert simulated_once(tmp_path / "rec", **args) == p and (p / "truth.csv").stat().st_mtime_ns == stamp
+    (p / ".complete").write_text("")                      # as the benchmarks' markers were
+    (p / "truth.csv").write_text("frame,stamp\n")
+    simulated_once(tmp_path / "rec", **args)
+    assert "tip_x" in (p / "truth.csv").read_text().splitlines()[0]
+    assert not list(tmp_path.glob("rec.tmp-*"))
+
+
 @pytest.mark.parametrize("args", [
     ["--frames", "0"], ["--frames", "-3"], ["--frames", "100000000"], ["--scene", "moon"], ["--size", "32x960"],
     ["--size", "540x50"], ["--size", "big"], ["--form", "zip"], ["--form", "folder", "--compressed"],
