@@ -247,6 +247,10 @@ def plot_accumulated(out: Path, cells: list[Cell]) -> list[Path]:
         if finals and min(finals) > 0 and max(finals) / min(finals) > 5:   # kinematics would flatten the rest
             ax.set_yscale("log")
             ax.set_ylabel("accumulated tip error (% of diagonal, log scale)")
+            plain = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}")   # 0.2, not 2 x 10^-1
+            ax.yaxis.set_minor_locator(matplotlib.ticker.LogLocator(subs=(2.0, 5.0)))
+            ax.yaxis.set_major_formatter(plain)
+            ax.yaxis.set_minor_formatter(plain)
         repeated = any(c.recording == rec and c.repeat > 0 for c in cells)   # table.csv: their seeds' mean
         ax.set_title(f"{rec}: running mean of the 2-D tool-tip error"
                      + (f"\n(repeated estimators: the run with seed {mine[0].options['seed']})" if repeated else ""),
