@@ -185,6 +185,9 @@ def test_in_image_without_distortion_is_the_image_rectangle():
 
 def test_size_mismatch_hint():
     assert "swapped" in size_mismatch_hint((960, 540), (540, 960))
+    # a crop by two rows is not "the same shape at 1 times the size"
+    assert "cropped or padded" in size_mismatch_hint((272, 480), (270, 480))
+    assert "at 2 times the size" in size_mismatch_hint((1080, 1920), (540, 960))
     assert "by 2)" in size_mismatch_hint((1080, 1920), (540, 960))
     assert "by 0.5)" in size_mismatch_hint((270, 480), (540, 960))
     assert size_mismatch_hint((480, 640), (540, 960)) == ""       # 4:3 against 16:9: no scale fits

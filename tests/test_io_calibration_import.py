@@ -327,6 +327,13 @@ def test_a_suspicious_baseline_is_said_where_it_is_written(stereo, tmp_path, cap
     assert "warning:" in err and "puts the right camera to the left of the left one" in err
     assert main(["calibration", "--out", str(tmp_path / "ok"), "--ros", str(left), str(right)]) == 0
     assert "warning" not in capsys.readouterr().err
+    doc = yaml.safe_load(right.read_text())                  # the baseline in cm: 0.51 "mm"
+    P = np.array(doc["projection_matrix"]["data"]).reshape(3, 4)
+    P[0, 3] /= 10
+    doc["projection_matrix"]["data"] = P.ravel().tolist()
+    (tmp_path / "right_cm.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    assert main(["calibration", "--out", str(tmp_path / "cm"), "--ros", str(left), str(tmp_path / "right_cm.yaml")]) == 0
+    assert "under 2 mm" in capsys.readouterr().err
 
 
 def test_a_missing_registration_is_said_before_its_arm(stereo, tmp_path, capsys):

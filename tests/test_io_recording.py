@@ -583,6 +583,21 @@ def test_folder_video_shorter_than_joints(tmp_path):
     assert len(out) == 5 and out[4].reason == "corrupt_image" and "video.mp4" in str(out[4])
 
 
+def test_a_joint_log_at_its_own_rate_is_told_to_be_resampled(tmp_path):
+    """joints.csv at three rows per image (a joint logger's rate) pairs row k with image k:
+    every frame gets another moment's joints, so the warning says what to do, not only
+    that rows have no image."""
+    seq = write_meta(tmp_path / "seq")
+    frames = make_frames(4)
+    write_folder(seq, frames)
+    rows = ["frame,stamp,q1,q2,q3,q4,q5,q6,jaw"] + [f"{k},{1_600_000_000.0 + k / 90},0,0,0.1,0,0,0,0.1"
+                                                    for k in range(12)]   # 90 rows/s for 4 images
+    (seq / "joints.csv").write_text("\n".join(rows) + "\n")
+    rec = open_recording(seq, **NO_ROBOT)
+    assert any("12 rows for 4 images" in w and "resampled to the image stamps" in w for w in rec.warnings)
+    assert not any("frames have no image" in w for w in rec.warnings)
+
+
 def test_folder_corrupt_and_missing_images(tmp_path):
     seq = write_meta(tmp_path / "seq")
     write_folder(seq, make_frames(4))

@@ -232,6 +232,8 @@ def size_mismatch_hint(image_hw, calib_hw) -> str:
     if tuple(image_hw) == tuple(calib_hw)[::-1]:
         return " (width and height swapped there?)"
     s = image_hw[1] / calib_hw[1]
+    if max(abs(int(a) - int(b)) for a, b in zip(image_hw, calib_hw)) <= max(8, 0.02 * max(calib_hw)):
+        return " (a few pixels off: cropped or padded images? the calibration must be of the images as recorded)"
     if image_hw[0] < 2 or abs(image_hw[0] / calib_hw[0] - s) > 2.0 / calib_hw[0]:
         return ""
     return (f" (the same shape at {s:g} times the size: calibrated at another resolution? scale ImageSize and "

@@ -39,9 +39,13 @@ def consistency_notes(rec) -> list[str]:
     return notes
 
 
+#: a stereo baseline shorter than this (mm) is noted: no stereo endoscope's is (T in cm?)
+SHORT_BASELINE_MM = 2.0
+
+
 def calibration_notes(calib, path) -> list[str]:
     """Lines on a camera calibration (``path``: its camera_calibration.yaml) that looks wrong
-    but may be right: a baseline with the right camera on the left, a principal point far
+    but may be right: a baseline with the right camera on the left or under 2 mm, a principal point far
     off centre, focal lengths far apart. ``graphtrack calibration`` prints them as it writes
     the file, ``track`` as it reads it."""
     notes = []
@@ -50,6 +54,10 @@ def calibration_notes(calib, path) -> list[str]:
         notes.append(f"{path}: T = {t_mm} mm puts the right camera to the left "
                      "of the left one (X_right = R X_left + T has T_x < 0 for a right camera on the right): "
                      "are T's sign or the left and right images swapped?")
+    if calib.stereo and 1e3 * np.linalg.norm(calib.T) < SHORT_BASELINE_MM:
+        notes.append(f"{path}: T's length is {1e3 * np.linalg.norm(calib.T):.3g} mm, under {SHORT_BASELINE_MM:g} mm: "
+                     "a stereo endoscope's baseline is 3 to 6 mm (the dVRK's about 5): T in cm, or calibrated "
+                     "with the square size in another unit? (tracking trusts the baseline for depth)")
     for key, cam in (("K1", calib.left), ("K2", calib.right)):
         if cam is not None and off_centre(cam):
             notes.append(f"{path}: {key}'s principal point "

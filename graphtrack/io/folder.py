@@ -172,7 +172,13 @@ class FolderSource:
                 self.warnings.append(f"{self.path / 'video.mp4'}: not read: frames/ holds the images (a "
                                      "recording has one or the other)")
             missing = self.n_images - len(self._files)
-            if missing:
+            if missing and len(self._files) == max(self._files) + 1 and self.n_images >= 1.5 * len(self._files):
+                self.warnings.append(   # images 0..m-1 and rows far beyond: a joint log at its own rate?
+                    f"{self.path / 'joints.csv'}: {self.n_images} rows for {len(self._files)} images (frames/ "
+                    f"0-{max(self._files)}, {1.0 / step:.0f} rows/s): row k is image k's reading; a joint log "
+                    "recorded at its own rate must be resampled to the image stamps (one row per image), or "
+                    f"every frame gets another moment's joints; the {missing} rows without an image are skipped")
+            elif missing:
                 self.warnings.append(f"{frames_dir}: {missing} of {self.n_images} frames have no image")
         elif (self.path / "video.mp4").is_file():
             self.video = self.path / "video.mp4"
