@@ -77,7 +77,7 @@ def read_yaml(path):
     try:
         return yaml.load(text, Loader=Loader)   # noqa: S506 - a SafeLoader with one more mapping tag
     except yaml.YAMLError as e:
-        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+        raise InputError(f"{path}: not valid YAML ({one_line(e)})") from None
 
 
 def read_json(path):

@@ -63,3 +63,14 @@ def test_track_and_detect_videos_play_at_a_25_hz_recordings_rate(tmp_path, capsy
     assert main(["detect", str(seq), "--out", str(det), "--detector", "canny", "--video", "--quiet"]) == 0
     fps, n = _fps_and_count(det / "detections.mp4")
     assert fps == pytest.approx(25.0, rel=1e-3) and n == 8
+
+
+def test_median_interval_of_stamps():
+    """The one period estimate the readers share: positive steps only (a repeated stamp does
+    not halve the period), integer nanoseconds differenced exactly, 0 without two stamps."""
+    from graphtrack.io.stamps import median_interval
+
+    assert median_interval([0.0, 0.1, 0.1, 0.2, 0.3]) == pytest.approx(0.1)
+    t0 = 1_700_000_000_123_456_789
+    assert median_interval([t0, t0 + 33_333_333, t0 + 66_666_667]) == 33_333_333.5
+    assert median_interval([5.0]) == 0.0 and median_interval([2.0, 2.0]) == 0.0

@@ -55,7 +55,7 @@ from graphtrack.detect.learned_net import ARCH, LineNet
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.segments import ExtractConfig, extract_segments
 from graphtrack.detect.subpixel import SubpixelConfig, refine_segments
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, one_line
 from graphtrack.geometry.lines import line_through
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "data" / "learned_detector.pt"
@@ -85,9 +85,8 @@ def load_weights(path: str | Path | None = None):
     try:
         net.load_state_dict(obj, strict=True)
     except (RuntimeError, KeyError, ValueError) as e:
-        first = str(e).strip().splitlines()[0]
         raise InputError(f"{path}: weights do not fit the learned detector's architecture "
-                         f"({ARCH}, width {width}): {first[:160]}") from None
+                         f"({ARCH}, width {width}): {one_line(e)[:160]}") from None
     return net.eval().fused()
 
 

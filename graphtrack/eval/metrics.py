@@ -10,6 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from graphtrack.estimate.base import STD_COLUMNS
+from graphtrack.geometry.se3 import invert, matrix_to_bw, rotation_angle_deg
+from graphtrack.io.run_output import write_text
+from graphtrack.io.trajectory import read_trajectory
+from graphtrack.robot.features import base_features
+
 
 def summary(values: np.ndarray) -> dict:
     """mean, std, median, p95 of finite values (NaN when there are none)."""
@@ -136,9 +142,7 @@ def runtime_metrics(ms: np.ndarray) -> dict:
 # -- against ground truth (truth.csv of simulated recordings) -------------------------
 def rotation_error_deg(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     """Angle (deg) of R_est R_true^T, for (..., 3, 3) stacks."""
-    D = np.einsum("...ij,...kj->...ik", np.asarray(R_est, float), np.asarray(R_true, float))
-    c = np.clip((np.trace(D, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
-    return np.degrees(np.arccos(c))
+    return rotation_angle_deg(R_est, R_true)
 
 
 def pose_errors(E_est: np.ndarray, E_true: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -171,13 +175,8 @@ def nees(E_true: np.ndarray, E_est: np.ndarray, std: np.ndarray) -> np.ndarray:
     return np.where(ok, v, np.nan)
 
 
-from graphtrack.estimate.base import STD_COLUMNS  # noqa: E402  (one definition)
 #: chi-square(6) two-sided 95% bounds of a single NEES value.
 NEES_95 = (1.2373442457912, 14.4493753446378)
-from graphtrack.geometry.se3 import invert, matrix_to_bw
-from graphtrack.io.trajectory import read_trajectory
-from graphtrack.io.run_output import write_text
-from graphtrack.robot.features import base_features
 
 
 def truth_path(recording: str | Path) -> Path | None:

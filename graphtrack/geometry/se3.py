@@ -197,6 +197,13 @@ def is_rotation(R, atol: float = 1e-4) -> bool:
             and np.linalg.det(R) > 0)
 
 
+def rotation_angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> np.ndarray:
+    """Angle (deg) of Ra Rb^T, the rotation between them, for (..., 3, 3) stacks."""
+    D = np.einsum("...ij,...kj->...ik", np.asarray(Ra, float), np.asarray(Rb, float))
+    c = np.clip((np.trace(D, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    return np.degrees(np.arccos(c))
+
+
 def is_rigid(T, atol: float = 1e-4) -> bool:
     """Whether T is a finite 4x4 rigid transform: a rotation (:func:`is_rotation`), a finite
     translation and the last row 0 0 0 1."""

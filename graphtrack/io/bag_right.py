@@ -12,11 +12,10 @@ gets None, counted in the source's ``right_skips``.
 """
 from __future__ import annotations
 
-import numpy as np
-
 from graphtrack.errors import one_line
 from graphtrack.io.bag_stamps import raw_header_ns
 from graphtrack.io.image_msg import decode_image
+from graphtrack.io.stamps import median_interval
 
 #: s, the least largest left-right stamp difference of a stereo pair (module doc)
 RIGHT_SYNC_S = 0.010
@@ -35,14 +34,10 @@ class RightMatcher:
         """ns: half the shorter median period of the right stamps pulled and the left ones
         asked for so far (a slower stream must not pair one image with a farther frame),
         RIGHT_SYNC_S at least; RIGHT_SYNC_S until both periods are known (the first frame)."""
-        periods = []
-        for stamps in (self.recent, self.lefts):
-            steps = np.diff(stamps)
-            steps = steps[steps > 0]
-            if not steps.size:
-                return int(RIGHT_SYNC_S * 1e9)
-            periods.append(int(np.median(steps)))
-        return max(int(RIGHT_SYNC_S * 1e9), min(periods) // 2)
+        periods = [median_interval(stamps) for stamps in (self.recent, self.lefts)]
+        if min(periods) <= 0:
+            return int(RIGHT_SYNC_S * 1e9)
+        return max(int(RIGHT_SYNC_S * 1e9), int(min(periods)) // 2)
 
     def _pull(self) -> None:
         try:

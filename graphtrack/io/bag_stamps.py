@@ -10,6 +10,8 @@ from functools import cached_property
 
 import numpy as np
 
+from graphtrack.io.stamps import median_interval
+
 
 # -- stamps -----------------------------------------------------------
 def to_ns(stamp: float) -> int:
@@ -79,7 +81,7 @@ class JointTable:
     @cached_property
     def _period_s(self) -> float:
         """The median interval between readings (s; 0 with fewer than two)."""
-        return float(np.median(np.diff(self.stamps))) / 1e9 if len(self.stamps) > 1 else 0.0
+        return median_interval(self.stamps) / 1e9
 
     def gap_s(self, t_ns: int) -> float:
         """|t_ns - the nearest reading's stamp| in seconds (inf if none)."""

@@ -26,6 +26,7 @@ import numpy as np
 from graphtrack.errors import FrameError, InputError, read_text
 from graphtrack.io.decode import read_image_file
 from graphtrack.io.frame import Frame
+from graphtrack.io.stamps import median_interval
 from graphtrack.io.video import open_video
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
@@ -34,11 +35,6 @@ MAX_FRAME_INTERVAL_S = 10.0
 #: s: a median interval above this (under one frame per second) is warned about: milliseconds
 #: of a camera at 100 frames/s or more read as seconds, below MAX_FRAME_INTERVAL_S
 SLOW_FRAME_INTERVAL_S = 1.0
-
-
-def median_interval(stamps: np.ndarray) -> float:
-    """The median interval between consecutive stamps (their unit; 0 for fewer than two)."""
-    return float(np.median(np.diff(stamps))) if len(stamps) > 1 else 0.0
 
 
 def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

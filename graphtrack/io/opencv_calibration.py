@@ -27,6 +27,7 @@ import numpy as np
 
 from graphtrack.errors import InputError
 from graphtrack.geometry.camera import Calibration, Camera
+from graphtrack.geometry.se3 import is_rotation, rotation_angle_deg
 
 ALIASES = {
     "K1": ("k1", "m1", "cameramatrix1", "cameramatrixl", "cameramatrixleft", "leftcameramatrix", "mtxl",
@@ -198,7 +199,7 @@ def calibration_from_opencv(paths: list[str | Path], keys: dict[str, str] | None
                          "does not say: give --length-unit (m, mm, or metres per unit: OpenCV's stereo_calib sample "
                          "without -s is in squares, e.g. 0.0025 for 2.5 mm squares)")
     R = stereo["R"].reshape(3, 3)
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) <= 0:
+    if not is_rotation(R):
         raise InputError(f"{where}: R is not a rotation matrix")
     calib = Calibration(left, _camera(stereo["K2"], stereo["D2"], h, w, where), R, stereo["T"] * unit_m)
     return calib, _rectification(calib, _find(nodes, "R1", keys, where), where)
@@ -214,10 +215,10 @@ def _rectification(calib: Calibration, saved: np.ndarray | None, where: str) -> 
     if saved is None:
         return R1
     saved = saved.reshape(3, 3)
-    if not np.allclose(saved @ saved.T, np.eye(3), atol=1e-4) or np.linalg.det(saved) <= 0:
+    if not is_rotation(saved):
         raise InputError(f"{where}: its R1 is not a rotation matrix")
     if not np.allclose(saved, R1, atol=1e-6):
-        angle = np.degrees(np.arccos(np.clip((np.trace(saved.T @ R1) - 1) / 2, -1, 1)))
+        angle = rotation_angle_deg(R1, saved)
         raise InputError(f"{where}: its R1 is not stereoRectify's left rectification for its R and T ({angle:.2g} "
                          "deg apart; R1 and R2 swapped, or an older extrinsics file?)")
     return R1

@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from graphtrack.errors import InputError
+from graphtrack.io.stamps import median_interval
 
 FALLBACK_FPS = 30.0
 
@@ -30,11 +31,8 @@ def open_video(path: str | Path) -> cv2.VideoCapture:
 
 def frame_rate(stamps, fallback: float = FALLBACK_FPS) -> float:
     """1 / median positive interval of ``stamps`` (s), within [1, 240] frames/s; else ``fallback``."""
-    dt = np.diff(np.asarray(stamps, float))
-    dt = dt[np.isfinite(dt) & (dt > 0)]
-    if dt.size == 0:
-        return float(fallback)
-    return float(np.clip(1.0 / np.median(dt), 1.0, 240.0))
+    dt = median_interval(stamps)
+    return float(np.clip(1.0 / dt, 1.0, 240.0)) if dt > 0 else float(fallback)
 
 
 class StampedVideoWriter:
