@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from graphtrack.eval.overlay import draw_overlay, line_in_image, video_frame_count
+from graphtrack.eval.overlay import draw_overlay, video_frame_count
 
 FRAMES = 12
 
@@ -121,13 +121,6 @@ def test_draw_overlay_marks_tip_label_detection(rec):
     for pixel in ([50.0, 60.0], [51.0, 60.0]):         # the pixel set: filled cyan dots in raw pixels
         x, y = np.round(ctx.camera.distort_pixels(np.array(pixel))).astype(int)
         assert tuple(img[y, x]) == (255, 255, 0) and tuple(img[y + 2, x]) == (255, 255, 0)
-
-
-def test_line_in_image_clips_to_rectangle():
-    ends = line_in_image(100.0, 0.0, 480, 270)  # x = 100
-    np.testing.assert_allclose(sorted(ends[:, 1]), [0.0, 269.0])
-    np.testing.assert_allclose(ends[:, 0], 100.0)
-    assert line_in_image(-50.0, 0.0, 480, 270) is None
 
 
 def test_drawing_the_video_is_not_the_tracking_cost(rec, tmp_path, monkeypatch):

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 
 from graphtrack.detect.base import Detection, Observation
+from graphtrack.geometry.lines import line_in_image
 
 GREY = (150, 150, 150)
 YELLOW = (0, 255, 255)
@@ -35,19 +36,10 @@ def _full_line(img: np.ndarray, rho: float, theta: float, colour, thickness: int
     """Draw cos(theta) x + sin(theta) y = rho clipped to the image."""
     if not (np.isfinite(rho) and np.isfinite(theta)):
         return
-    h, w = img.shape[:2]
-    c, s = np.cos(theta), np.sin(theta)
-    x0, y0 = rho * c, rho * s
-    L = 4.0 * (h + w)
-    p1 = (x0 - L * s, y0 + L * c)
-    p2 = (x0 + L * s, y0 - L * c)
-    shift = 4
-    f = 1 << shift
-    ok, a, b = cv2.clipLine((0, 0, w * f, h * f),
-                            (int(round(p1[0] * f)), int(round(p1[1] * f))),
-                            (int(round(p2[0] * f)), int(round(p2[1] * f))))
-    if ok:
-        cv2.line(img, a, b, colour, thickness, cv2.LINE_AA, shift)
+    ends = line_in_image(rho, theta, img.shape[1], img.shape[0])
+    if ends is not None:
+        a, b = (tuple(int(v) for v in np.round(e * 16)) for e in ends)   # 4 fractional bits
+        cv2.line(img, a, b, colour, thickness, cv2.LINE_AA, 4)
 
 
 def _segment(img, seg, colour, thickness=1) -> None:

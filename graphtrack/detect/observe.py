@@ -41,7 +41,7 @@ import numpy as np
 
 from graphtrack.detect.base import OBSERVATION_MODELS, Detection, Observation
 from graphtrack.detect.pixel_sets import ALPHA, BETA, carry_to_segment, endpoints_set, line_set
-from graphtrack.detect.ransac import RansacConfig, best_line
+from graphtrack.detect.ransac import RansacConfig, best_line, seeded_rng
 from graphtrack.geometry.lines import line_through
 
 
@@ -64,12 +64,6 @@ def _thin(points: np.ndarray, max_pixels: int | None) -> np.ndarray:
     if not max_pixels or len(points) <= max_pixels:
         return points
     return points[np.linspace(0, len(points) - 1, max_pixels).round().astype(int)]
-
-
-def _rng(rng) -> np.random.Generator:
-    if isinstance(rng, np.random.Generator):
-        return rng
-    return np.random.default_rng(0 if rng is None else rng)
 
 
 def make_observation(detection: Detection, model: str, alpha: float = ALPHA, beta: float = BETA,
@@ -113,7 +107,7 @@ def make_observation(detection: Detection, model: str, alpha: float = ALPHA, bet
     sets = [_thin(carry_to_segment(pts, seg) if r else pts, max_pixels) for pts, seg, r in zip(sets, segs, refined)]
 
     if model.endswith("-polar"):
-        gen = _rng(rng)
+        gen = seeded_rng(rng)
         lines, kept = [], []
         for eid, pts, seg in zip(ids, sets, segs):
             # E_e: label each pixel by its endpoint disc, so that samples span the edge

@@ -97,9 +97,9 @@ class RansacConfig:
     min_inliers: int = 3     #: stop when the best hypothesis explains fewer
 
 
-def _rng(rng) -> np.random.Generator:
-    if isinstance(rng, np.random.Generator):
-        return rng
+def seeded_rng(rng) -> np.random.Generator:
+    """``rng`` itself when a Generator, else a Generator seeded with it (None: seed 0, so that
+    RANSAC draws repeat run to run)."""
     return np.random.default_rng(0 if rng is None else rng)
 
 
@@ -120,7 +120,7 @@ def sequential_ransac(points: np.ndarray, config: RansacConfig | None = None,
     L <= config.iterations, in extraction order.
     """
     cfg = config or RansacConfig()
-    gen = _rng(rng)
+    gen = seeded_rng(rng)
     pts = np.asarray(points, float).reshape(-1, 2)
     fin = np.all(np.isfinite(pts), axis=1)
     pts = pts[fin]

@@ -27,6 +27,7 @@ import numpy as np
 
 from graphtrack.detect.base import Detection, Observation
 from graphtrack.estimate.base import Estimate
+from graphtrack.geometry.lines import line_in_image
 from graphtrack.io.video import StampedVideoWriter, open_video
 from graphtrack.robot.features import base_features
 
@@ -40,29 +41,6 @@ WHITE = (255, 255, 255)
 
 def _pts(uv: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(uv, float) * 16).astype(np.int32)  # 4 fractional bits
-
-
-def line_in_image(rho: float, theta: float, width: int, height: int, margin: float = 0.0) -> np.ndarray | None:
-    """The two ends (2, 2) of cos(t) x + sin(t) y = rho clipped to the image rectangle (or None)."""
-    c, s = np.cos(theta), np.sin(theta)
-    x0, y0, x1, y1 = -margin, -margin, width - 1 + margin, height - 1 + margin
-    cand = []
-    if abs(s) > 1e-12:
-        for x in (x0, x1):
-            y = (rho - c * x) / s
-            if y0 - 1e-9 <= y <= y1 + 1e-9:
-                cand.append((x, y))
-    if abs(c) > 1e-12:
-        for y in (y0, y1):
-            x = (rho - s * y) / c
-            if x0 - 1e-9 <= x <= x1 + 1e-9:
-                cand.append((x, y))
-    if len(cand) < 2:
-        return None
-    cand = np.array(cand)
-    d = np.linalg.norm(cand[:, None] - cand[None], axis=-1)
-    i, j = np.unravel_index(np.argmax(d), d.shape)
-    return cand[[i, j]]
 
 
 def sample_segment(a: np.ndarray, b: np.ndarray, n: int = 24) -> np.ndarray:

@@ -78,3 +78,26 @@ def point_segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> 
     t = np.zeros(len(p)) if L2 == 0 else np.clip((p - a) @ ab / L2, 0.0, 1.0)
     proj = a + t[:, None] * ab
     return np.linalg.norm(p - proj, axis=1)
+
+
+def line_in_image(rho: float, theta: float, width: int, height: int, margin: float = 0.0) -> np.ndarray | None:
+    """The two ends (2, 2) of cos(t) x + sin(t) y = rho clipped to the image rectangle (or None)."""
+    c, s = np.cos(theta), np.sin(theta)
+    x0, y0, x1, y1 = -margin, -margin, width - 1 + margin, height - 1 + margin
+    cand = []
+    if abs(s) > 1e-12:
+        for x in (x0, x1):
+            y = (rho - c * x) / s
+            if y0 - 1e-9 <= y <= y1 + 1e-9:
+                cand.append((x, y))
+    if abs(c) > 1e-12:
+        for y in (y0, y1):
+            x = (rho - s * y) / c
+            if x0 - 1e-9 <= x <= x1 + 1e-9:
+                cand.append((x, y))
+    if len(cand) < 2:
+        return None
+    cand = np.array(cand)
+    d = np.linalg.norm(cand[:, None] - cand[None], axis=-1)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    return cand[[i, j]]
