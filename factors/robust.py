@@ -115,9 +115,8 @@ class RobustKernel:
 
 
 def make_kernel(kind: str | RobustKernel | None = "cauchy", k: float | None = None) -> RobustKernel:
-    """Kernel from a name ("huber", "cauchy", "none"/None) and width (defaults 1.345 / 2.0 sigmas,
-    gtsam's). A wider Huber (3.0) was measured worse on the synthetic sequences (slower pull-in
-    from a several-mm hand-eye error, larger final error with 20% outliers)."""
+    """Kernel from a name ("huber", "cauchy", "none"/None) and width k in sigmas (defaults:
+    Huber 1.345, gtsam's; Cauchy 2.0). ValueError for another name."""
     if isinstance(kind, RobustKernel):
         return kind
     kind = "none" if kind in (None, "none", "gaussian", "l2") else str(kind).lower()

@@ -22,10 +22,9 @@ of an iteration are evaluated at once (a (trials, points) residual matrix).
 With ``groups`` (a 0 / 1 label per point: the two endpoint discs of E_e), each
 sample takes its first pixel from group 0 and its second from group 1 while
 both have points left, so every hypothesis spans the edge: a line fitted
-inside one ~20 px disc follows the pixel lattice instead (on a tuning
-recording, where one disc was empty, the endpoint-intensities-polar lines came
-out at exactly theta = 3 pi / 4, 20-40 deg off the edge;
-:mod:`graphtrack.detect.observe` now leaves such an edge out).
+inside one ~20 px disc follows the pixel lattice instead (it comes out at
+multiples of pi / 4, tens of degrees off the edge; :mod:`graphtrack.detect.observe`
+leaves an edge with an empty disc out).
 """
 from __future__ import annotations
 
@@ -65,9 +64,9 @@ def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     n = float(w.sum())
     if not n > 0 or not np.all(np.isfinite(c)):
         return np.array([np.nan, np.nan])          # no points, no weight, or a non-finite point
-    # tls_from_moments and canonical for one line, in scalars (numpy's 0-d call overhead
-    # was most of the sub-pixel refinement's fit); np.arctan2, not math.atan2: the two
-    # differ in the last bit on some CPUs, and the line stays the one tls_from_moments gives
+    # tls_from_moments and canonical for one line, in scalars (numpy's 0-d calls would cost
+    # more than the arithmetic); np.arctan2, not math.atan2: the two differ in the last bit
+    # on some CPUs, and the line stays the one tls_from_moments gives
     mx, my = float(w @ x) / n, float(w @ y) / n
     cxx = float(w @ (x * x)) / n - mx * mx
     cxy = float(w @ (x * y)) / n - mx * my
