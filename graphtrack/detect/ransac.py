@@ -55,7 +55,8 @@ def tls_from_moments(n, sx, sy, sxx, sxy, syy) -> tuple[np.ndarray, np.ndarray]:
 
 
 def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
-    """TLS line (rho, theta) through points (P, 2), P >= 2; optional weights (P,)."""
+    """Total-least-squares line (rho px, theta rad; canonical, :mod:`graphtrack.geometry.lines`)
+    through points (P, 2) px, P >= 2, with optional weights (P,); NaNs without points."""
     p = np.asarray(points, float)
     w = np.ones(len(p)) if weights is None else np.asarray(weights, float)
     c = p.mean(0)

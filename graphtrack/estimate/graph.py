@@ -42,7 +42,8 @@ def key(k: int) -> int:
 
 
 def right_from_left_cov(E: np.ndarray, cov_bw: np.ndarray) -> np.ndarray:
-    """Left (b, w) covariance at E -> gtsam right (omega, v) covariance."""
+    """Left (b, w) covariance at E (6x6; b m, w rad: E_true = Exp(xi) . E) -> gtsam's right
+    (omega, v) covariance (E_true = E . Exp(xi_R), rotation first)."""
     S = np.asarray(cov_bw, float)[np.ix_(_PERM, _PERM)]          # (omega, v) order
     Ai = gtsam.Pose3(E).inverse().AdjointMap()
     C = Ai @ S @ Ai.T
@@ -50,7 +51,8 @@ def right_from_left_cov(E: np.ndarray, cov_bw: np.ndarray) -> np.ndarray:
 
 
 def left_from_right_cov(E: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
-    """gtsam right (omega, v) covariance at E -> left (b, w) covariance."""
+    """gtsam's right (omega rad, v m) covariance at E (6x6) -> the left (b m, w rad) covariance
+    (:func:`right_from_left_cov` inverted)."""
     A = gtsam.Pose3(E).AdjointMap()
     C = A @ np.asarray(cov_right, float) @ A.T
     C = C[np.ix_(_PERM, _PERM)]
@@ -58,7 +60,8 @@ def left_from_right_cov(E: np.ndarray, cov_right: np.ndarray) -> np.ndarray:
 
 
 def left_error(E_true: np.ndarray, E_est: np.ndarray) -> np.ndarray:
-    """(b, w) with E_true = Exp(xi_L) . E_est (gtsam Logmap, reordered)."""
+    """(b m, w rad) with E_true = Exp(xi_L) . E_est: gtsam's SE(3) Logmap (translation part
+    V^-1 t, not t), reordered translation first."""
     xi = gtsam.Pose3.Logmap(gtsam.Pose3(E_true @ np.linalg.inv(E_est)))
     return np.asarray(xi)[_PERM]
 

@@ -74,10 +74,13 @@ class Camera:
         return np.stack(self._distort_xy(xy[..., 0], xy[..., 1]), -1)
 
     def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
+        """Normalised image coordinates (..., 2) (X/Z, Y/Z, no distortion) -> undistorted pixels (u, v)
+        = (fx x + cx, fy y + cy) px."""
         xy = np.asarray(xy, float)
         return np.stack([self.fx * xy[..., 0] + self.cx, self.fy * xy[..., 1] + self.cy], -1)
 
     def pixels_to_normalized(self, uv: np.ndarray) -> np.ndarray:
+        """Undistorted pixels (..., 2) px -> normalised image coordinates ((u - cx)/fx, (v - cy)/fy)."""
         uv = np.asarray(uv, float)
         return np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy], -1)
 

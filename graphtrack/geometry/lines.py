@@ -59,7 +59,7 @@ def pixel_residual(points: np.ndarray, rho: np.ndarray, theta: np.ndarray) -> np
 
 
 def line_through(p1: np.ndarray, p2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Canonical (rho, theta) of the line through points p1, p2 (..., 2)."""
+    """Canonical (rho px, theta rad) of the line through points p1, p2 (..., 2) px."""
     p1 = np.asarray(p1, float)
     p2 = np.asarray(p2, float)
     d = p2 - p1

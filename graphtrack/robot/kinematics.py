@@ -33,7 +33,8 @@ def check_joints(robot: RobotDescription, q: np.ndarray, where: str = "joints") 
 
 
 def joint_transform(joint, qi: np.ndarray) -> np.ndarray:
-    """T_i(q_i) for one DHJoint, qi of any shape -> (..., 4, 4)."""
+    """T_i(q_i) = RotX(alpha) TransX(A) RotZ(theta) TransZ(D) (modified DH) for one DHJoint, qi
+    (rad for a revolute joint, m for a prismatic one) of any shape -> (..., 4, 4), metres."""
     qi = np.asarray(qi, dtype=float)
     if joint.type == "revolute":
         theta, D = joint.theta + joint.offset + qi, np.full(qi.shape, joint.D)
@@ -44,7 +45,8 @@ def joint_transform(joint, qi: np.ndarray) -> np.ndarray:
 
 
 def link_transforms(robot: RobotDescription, q: np.ndarray) -> np.ndarray:
-    """base_T_link for links 0..n_links: (..., n_links + 1, 4, 4); link 0 is the base."""
+    """base_T_link for links 0..n_links: (..., n_links + 1, 4, 4), metres; link 0 is the base.
+    q (..., n_joints): the DH joints (rad / m), then the jaw (rad) for a tool with a gripper."""
     q = np.asarray(q, dtype=float)
     if q.ndim == 1:
         return _single_link_transforms(robot, q)
