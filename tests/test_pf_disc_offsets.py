@@ -143,3 +143,23 @@ def test_a_point_marker_the_likelihood_does_not_see_takes_no_detection():
         np.testing.assert_allclose(pf._disc_centres(Q[t], E, obs, None)[0].markers, moved.markers, atol=1e-12)
         checked += 1
     assert checked >= 3, checked
+
+
+def test_the_filter_and_the_factors_agree_which_markers_are_painted_on_the_shaft():
+    """A marker 10 % off the shaft's radius is a point for both (the filter's own rule
+    took anything within 25 %), one on the shaft's surface a disc for both."""
+    from graphtrack.robot.features import marker_discs
+    from graphtrack.robot.kinematics import link_transforms
+
+    robot, q, k = SCENE.robot, Q[0], 0
+    feats = base_features(robot, q)
+    p0, d, r = feats.shaft_p0[0], feats.shaft_d[0], float(feats.shaft_r[0])
+    rad = (feats.points[k] - p0) - ((feats.points[k] - p0) @ d) * d
+    moved = feats.points[k] + 0.10 * r * rad / np.linalg.norm(rad)     # 10 % farther out (base frame)
+    T = np.linalg.inv(link_transforms(robot, q)[robot.point_features[k].link])
+    marker = dataclasses.replace(robot.point_features[k], position=tuple(T[:3, :3] @ moved + T[:3, 3]))
+    off = dataclasses.replace(robot, point_features=[marker] + list(robot.point_features[1:]))
+    assert frame_geometry(robot, q, np.eye(4)).on_shaft[k]
+    assert not frame_geometry(off, q, np.eye(4)).on_shaft[k]
+    discs = marker_discs(off, base_features(off, q))
+    assert discs is None or np.allclose(discs[1][k], 0.0)     # a point: no disc normals
