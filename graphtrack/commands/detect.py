@@ -84,9 +84,6 @@ def start_gate(detector):
     return dataclasses.replace(base, max_offset=MAX_GATE_PX)
 
 
-#: the files a detect run writes (another run's are refused unless --overwrite)
-
-
 def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), video: bool = False,
                      max_frames: int | None = None, quiet: bool = False,
                      topics: TopicSelection = TopicSelection(), stereo: bool = True,

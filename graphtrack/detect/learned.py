@@ -213,7 +213,8 @@ class LearnedDetector:
         markers = self._markers(img, camera)
         maps = self.heatmaps(img, camera)
         if maps is None:
-            return Detection(heatmap=np.zeros(img.shape[:2], np.float32), markers=markers, ms=(time.perf_counter() - t0) * 1e3)
+            return Detection(heatmap=np.zeros(img.shape[:2], np.float32), markers=markers,
+                             ms=(time.perf_counter() - t0) * 1e3)
         L, J = maps
         h, w = img.shape[:2]
         seg_s, _ = extract_segments(L, J, self.extract)

@@ -68,7 +68,7 @@ def frame_geometry(robot, q: np.ndarray, E0: np.ndarray) -> FrameGeometry:
     rel = pts - p0
     radial = rel - (rel @ d)[:, None] * d
     dist = np.linalg.norm(radial, axis=1)
-    # painted on the shaft: on its surface and on its link, as robot.features.painted_discs decides
+    # painted on the shaft: on its surface and on its link, as robot.features.marker_discs decides
     on_shaft = on_surface(pts, p0, d, r) & (np.array([p.link for p in feats], int) == sf.link)
     normals = np.where(on_shaft[:, None], radial / np.maximum(dist, 1e-12)[:, None], 0.0)
     cols = [(R0 @ p0 + t0)[:, None], (R0 @ d)[:, None], (pts @ R0.T + t0).T, (normals @ R0.T).T]
