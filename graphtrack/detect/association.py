@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from graphtrack.geometry.lines import line_difference
+from graphtrack.geometry.lines import line_difference, pixel_residual
 
 
 @dataclass
@@ -139,8 +139,7 @@ def _gated(L, seg, mid, length, ok, predicted_lines, cfg) -> Association:
     pr = pred[pid]
     drho, dth = line_difference(L[:, None, 0], L[:, None, 1], pr[None, :, 0], pr[None, :, 1])
     if mid is not None:  # signed offset of each candidate's midpoint from each predicted line
-        sig = (np.cos(pr[None, :, 1]) * mid[:, None, 0] + np.sin(pr[None, :, 1]) * mid[:, None, 1]
-               - pr[None, :, 0])
+        sig = pixel_residual(mid, pr[:, 0], pr[:, 1]).T
     else:
         sig = drho
     off = np.abs(sig)
@@ -166,8 +165,7 @@ def _pair_ok(L, seg, mid, length, cand, cfg) -> np.ndarray:
     if seg is not None:
         m = mid[cand]
         c, s = np.cos(Lc[:, 1]), np.sin(Lc[:, 1])
-        # dist[i, j]: midpoint of j to line i
-        dist = np.abs(c[:, None] * m[None, :, 0] + s[:, None] * m[None, :, 1] - Lc[:, None, 0])
+        dist = np.abs(pixel_residual(m, Lc[:, 0], Lc[:, 1]))        # dist[i, j]: midpoint of j to line i
         width = 0.5 * (dist + dist.T)
         # extents along the direction of line i, (-sin, cos)
         sg = seg[cand]
