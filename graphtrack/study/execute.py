@@ -11,6 +11,7 @@ the files and the driver writes them (:func:`run_cell_portable`).
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing as mp
 import os
 import re
@@ -205,6 +206,8 @@ def run_ray(cells: list[Cell], address: str, workers: int | None = None, quiet: 
     started = False
     if not ray.is_initialized():
         kw = {"ignore_reinit_error": True, "include_dashboard": False, "log_to_driver": False}
+        if quiet:   # --quiet: not Ray's own start-up lines either (its warnings, "Started a local Ray instance")
+            kw["logging_level"] = logging.ERROR
         try:
             if address == "local":
                 # workers find graphtrack where this process found it (also when not installed)
