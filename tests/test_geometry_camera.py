@@ -222,3 +222,11 @@ def test_undistort_refuses_an_image_of_another_size():
         cam.undistort(np.zeros((240, 320, 3), np.uint8))
     with pytest.raises(ValueError, match="width and height swapped"):
         cam.undistort(np.zeros((160, 120, 3), np.uint8))
+
+
+@pytest.mark.parametrize("t_mm, hint", [(0.45, "centimetres by 10"), (0.004, "metres must be multiplied by 1000")])
+def test_a_baseline_in_another_unit_is_named(tmp_path, t_mm, hint):
+    cam = Camera(np.array([[100.0, 0, 80], [0, 100, 60], [0, 0, 1]]), np.zeros(5), 120, 160)
+    save_calibration(tmp_path / "c.yaml", Calibration(cam, cam, np.eye(3), np.array([-t_mm / 1000, 0.0, 0.0])))
+    with pytest.raises(InputError, match=hint):
+        load_calibration(tmp_path / "c.yaml")

@@ -66,3 +66,22 @@ def test_a_study_folder_and_a_run_folder_are_not_mixed(tmp_path):
         with pytest.raises(InputError, match=r"study: holds a study \(study.json"):
             prepare_run_dir(study, overwrite)
     assert (study / "study.json").is_file()
+
+
+def test_an_interrupt_waits_until_both_writes_are_done():
+    """Ctrl-C between a frame's trajectory row and its video frame: raised after both, so an
+    interrupted run's video has the frames trajectory.csv has rows for."""
+    import os
+    import signal
+
+    from graphtrack.io.run_output import deferred_interrupts
+
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupts():
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("row")
+            done.append("video")
+    assert done == ["row", "video"]
+    with deferred_interrupts():                           # nothing pending: nothing raised
+        done.append("next")

@@ -81,8 +81,9 @@ def test_a_frame_built_by_the_caller_is_checked_as_a_recordings_are(stereo):
     for image in (f0.image / 255.0, f0.image[:, :, 0], np.dstack([f0.image, f0.image[:, :, :1]])):
         with pytest.raises(FrameError, match="8-bit BGR"):
             pipe.step(dataclasses.replace(f0, image=image))
-    with pytest.raises(FrameError, match="not numbers"):
-        pipe.step(dataclasses.replace(f0, jaw=None))
+    for jaw in (None, "0.4"):
+        with pytest.raises(FrameError, match="not numbers"):
+            pipe.step(dataclasses.replace(f0, jaw=jaw))
     with pytest.raises(FrameError, match="not a finite number"):
         pipe.step(dataclasses.replace(f0, stamp="1.0"))
     for reason, frame in bad.items():

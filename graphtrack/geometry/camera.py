@@ -346,9 +346,12 @@ def load_calibration(path: str | Path) -> Calibration:
             raise InputError(f"{path}: key 'R' is not a rotation matrix (right-from-left, row-major)")
         T = _matrix(doc, "T", 3, path) / 1000.0
         if not MIN_BASELINE_MM <= 1e3 * np.linalg.norm(T) <= 1000.0:
-            raise InputError(f"{path}: key 'T' is {1e3 * np.linalg.norm(T):.3g} mm long; a stereo baseline "
-                             f"is {MIN_BASELINE_MM:g} to 1000 mm (the dVRK endoscope's about 5 mm), in millimetres: "
-                             "values in metres must be multiplied by 1000")
+            mm = 1e3 * np.linalg.norm(T)
+            unit = ("values in metres must be multiplied by 1000" if mm < 0.05 else
+                    "values in centimetres by 10, in metres by 1000" if mm < MIN_BASELINE_MM else
+                    "is it in micrometres or pixels?")
+            raise InputError(f"{path}: key 'T' is {mm:.3g} mm long; a stereo baseline is {MIN_BASELINE_MM:g} to "
+                             f"1000 mm (the dVRK endoscope's about 5 mm), in millimetres: {unit}")
         return Calibration(left, right, R, T, notes)
     return Calibration(left, notes=notes)
 

@@ -27,11 +27,11 @@ def frame_problem(frame, n_joints: int | None, size: tuple[int, int], bounds, ha
     finite and within range too."""
     h, w = size
     image = None if frame.image is None else np.asarray(frame.image)
-    try:
-        joints, jaw = np.asarray(frame.joints, dtype=float).ravel(), float(frame.jaw)
-    except (TypeError, ValueError):
+    numbers = np.asarray(frame.joints).dtype.kind in "iuf" and isinstance(frame.jaw, (int, float, np.number))
+    if not numbers or isinstance(frame.jaw, bool):
         return FrameError(frame.index, "nan_joints", f"joint reading {frame.joints!r}, jaw {frame.jaw!r}: "
                           "not numbers (the jaw is NaN for a tool without a gripper)")
+    joints, jaw = np.asarray(frame.joints, dtype=float).ravel(), float(frame.jaw)
     if image is None or image.ndim < 2 or image.shape[:2] != (h, w):
         got = "no image" if image is None else f"image is {image.shape[1]}x{image.shape[0]} px" if image.ndim >= 2 \
             else f"image has shape {image.shape}"

@@ -18,9 +18,12 @@
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import signal
+import threading
 from pathlib import Path
 
 from graphtrack.errors import InputError
@@ -33,6 +36,32 @@ RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", 
 
 #: the files ``graphtrack detect`` writes into its output folder
 DETECT_FILES = ("detections.csv", "detections_right.csv", "detections.mp4")
+
+
+@contextlib.contextmanager
+def deferred_interrupts():
+    """Ctrl-C and SIGTERM held back until the block ends, then handled as they would have
+    been (KeyboardInterrupt), so that a frame's outputs are written together or not at all:
+    an interrupted run's video holds the frames trajectory.csv has rows for. The Python
+    handlers are swapped (a thread mask would not do: the signal goes to any thread that
+    does not block it). Does nothing off the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    kinds = (signal.SIGINT, signal.SIGTERM)
+    old = {k: signal.signal(k, lambda signum, frame: held.append(signum)) for k in kinds}
+    try:
+        yield
+    finally:
+        for k, handler in old.items():
+            signal.signal(k, handler)
+        if held:
+            handler = old[held[0]]
+            if callable(handler):
+                handler(held[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(held[0])
 
 
 def refuse_other_runs(out: str | Path, what: str) -> None:

@@ -30,7 +30,7 @@ from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_met
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
-from graphtrack.io.run_output import (lock_problem, lock_refused, outside_recording, prepare_run_dir,
+from graphtrack.io.run_output import (deferred_interrupts, lock_problem, lock_refused, outside_recording, prepare_run_dir,
                                       require_lock, require_tool_in_front, require_tracked, write_json)
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
@@ -200,11 +200,11 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
             t = time.perf_counter()
             tip = tip_pixel(ctx, frame.q, est.E)
             total_ms = t_decode + sum(ms.values())
-            writer.write(frame.index, frame.stamp, est.E, tip, total_ms, _extras(est, extra))
-            if overlay is not None:   # its drawing is timed apart: not the tracking's cost
-                ms["video"] = overlay.write(frame, est, det, obs, tip, pipe.right)
-            ms["write"] = 1e3 * (time.perf_counter() - t) - ms.get("video", 0.0)
-            ms["decode"] = t_decode
+            with deferred_interrupts():   # the row and the video frame both, or neither
+                writer.write(frame.index, frame.stamp, est.E, tip, total_ms, _extras(est, extra))
+                if overlay is not None:   # its drawing is timed apart: not the tracking's cost
+                    ms["video"] = overlay.write(frame, est, det, obs, tip, pipe.right)
+            ms.update(write=1e3 * (time.perf_counter() - t) - ms.get("video", 0.0), decode=t_decode)
             run.add(frame, est.E, tip, ms, total_ms, 1e3 * (time.perf_counter() - t0) - ms.get("video", 0.0))
             run.informative.append(obs is not None and (obs.has_shaft or len(obs.markers) > 0))
         _refine(pipe, run, writer, extra)
