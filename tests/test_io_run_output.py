@@ -77,11 +77,22 @@ def test_an_interrupt_waits_until_both_writes_are_done():
     from graphtrack.io.run_output import deferred_interrupts
 
     done = []
-    with pytest.raises(KeyboardInterrupt):
+    # Python's own Ctrl-C handler (a process started in the background inherits SIGINT ignored)
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with deferred_interrupts():
+                os.kill(os.getpid(), signal.SIGINT)
+                done.append("row")
+                done.append("video")
+        assert done == ["row", "video"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler   # restored
+        with deferred_interrupts():                       # nothing pending: nothing raised
+            done.append("next")
+        signal.signal(signal.SIGINT, signal.SIG_IGN)      # an ignored Ctrl-C stays ignored
         with deferred_interrupts():
             os.kill(os.getpid(), signal.SIGINT)
-            done.append("row")
-            done.append("video")
-    assert done == ["row", "video"]
-    with deferred_interrupts():                           # nothing pending: nothing raised
-        done.append("next")
+            done.append("ignored")
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert done[-2:] == ["next", "ignored"]
