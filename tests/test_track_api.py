@@ -172,3 +172,19 @@ def test_a_one_frame_run_has_no_steady_rate():
     run.frame_ms = [504.0, 20.0, 30.0]
     s = run.summary(0.6)
     assert s["frame_ms_mean"] == 25.0 and s["fps_steady"] == 40.0
+
+
+def test_many_skips_of_one_reason_are_counted_not_each_listed(capsys):
+    """A joints.csv with 40 rows past the last image warned 40 times; each reason now warns
+    its first WARN_EACH frames, then once that the rest are counted."""
+    from graphtrack.track.runlog import SkipCounter
+
+    skipped = SkipCounter()
+    for k in range(25):
+        skipped.skip(FrameError(k, "missing_image", "frames/ has no image"), quiet=False)
+    skipped.skip(FrameError(30, "corrupt_image", "does not decode"), quiet=False)
+    lines = capsys.readouterr().err.splitlines()
+    assert skipped["missing_image"] == 25 and skipped["corrupt_image"] == 1
+    assert len(lines) == SkipCounter.WARN_EACH + 2
+    assert "skipping frame 10 and further 'missing_image' frames: counted in metrics.json" in lines[-2]
+    assert lines[-1].startswith("graphtrack: warning: skipping frame 30")

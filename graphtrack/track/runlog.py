@@ -31,11 +31,19 @@ class SkipCounter(Counter):
         super().__init__()
         self.examples: dict[str, str] = {}
 
+    #: skips of one reason warned about one by one; the rest are counted, not listed
+    WARN_EACH = 10
+
     def skip(self, error: FrameError, quiet: bool) -> None:
-        """Count a skipped frame, keep its reason's first message, warn unless quiet."""
+        """Count a skipped frame, keep its reason's first message, warn unless quiet (each
+        of the first WARN_EACH of a reason, then once that the rest are only counted)."""
         self[error.reason] += 1
         self.examples.setdefault(error.reason, str(error))
-        warn(f"warning: skipping {error}", quiet)
+        if self[error.reason] <= self.WARN_EACH:
+            warn(f"warning: skipping {error}", quiet)
+        elif self[error.reason] == self.WARN_EACH + 1:
+            warn(f"warning: skipping frame {error.frame} and further '{error.reason}' frames: counted in "
+                 "metrics.json (skipped_reasons), not listed", quiet)
 
 
 @dataclass
