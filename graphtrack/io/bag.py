@@ -41,7 +41,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from graphtrack.errors import FrameError, InputError, one_line as _one_line
+from graphtrack.errors import FrameError, InputError, one_line
 from graphtrack.io.bag1scan import Bag1Scan
 from graphtrack.io.bag_right import RightMatcher
 from graphtrack.io.bag_stamps import JointTable, header_ns, raw_header_ns
@@ -96,7 +96,7 @@ class BagSource:
             raise
         except Exception as e:  # noqa: BLE001 - rosbags raises many types on damaged files
             if self.ros2 or not self._has_ros1_magic():
-                raise InputError(f"{self.path}: cannot read bag ({_one_line(e)})") from None
+                raise InputError(f"{self.path}: cannot read bag ({one_line(e)})") from None
             self.scan = True
             topics = self._scan_topics(e)
         self._choose_topics(topics)
@@ -134,7 +134,7 @@ class BagSource:
                 ns = raw_header_ns(raw, False) if len(raw) >= 12 else 0
                 img_stamps.setdefault(conn.topic, []).append(ns or t)
         self.truncated = True
-        why = f"{_one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
+        why = f"{one_line(err)}; {scan.stop_reason or 'no damage found in the records'}"
         self.warnings.append(f"{self.path}: bag index unusable ({why}); read by scanning its "
                              "records, frames after the damage are missing")
         self._scan_warning = len(self.warnings) - 1     # _choose_topics adds the last good frame
@@ -210,7 +210,7 @@ class BagSource:
             except Exception as e:  # noqa: BLE001
                 if self.ros2 or not self._has_ros1_magic():
                     raise InputError(f"{self.path}: damaged bag data while reading {self.joint_topic} "
-                                     f"({_one_line(e)})") from None
+                                     f"({one_line(e)})") from None
                 # a damaged chunk of an indexed ROS 1 bag: read up to it as a truncated bag is
                 self.scan = True
                 self._choose_topics(self._scan_topics(e))
@@ -284,7 +284,7 @@ class BagSource:
                 return
             except Exception as e:  # noqa: BLE001
                 raise InputError(f"{self.path}: unreadable after frame {index} "
-                                 f"({_one_line(e)})") from None
+                                 f"({one_line(e)})") from None
             index += 1
             if index >= self.n_images:  # truncated bag: images past the last joint reading
                 return
@@ -301,10 +301,10 @@ class BagSource:
             except InputError as e:
                 if not decoded:   # the first image's encoding is unreadable: every frame would fail alike
                     raise
-                yield FrameError(index, "corrupt_image", _one_line(e).removeprefix(f"{self.path}: "))
+                yield FrameError(index, "corrupt_image", one_line(e).removeprefix(f"{self.path}: "))
                 continue
             except Exception as e:  # noqa: BLE001 - undecodable message or image
-                yield FrameError(index, "corrupt_image", f"{self.image_topic}: {_one_line(e)}")
+                yield FrameError(index, "corrupt_image", f"{self.image_topic}: {one_line(e)}")
                 continue
             decoded = True
             if self.image_type == IMAGE_TYPE and (why := noise_span(image)) is not None:

@@ -64,11 +64,16 @@ def deferred_interrupts():
                 signal.raise_signal(held[0])
 
 
+def _present(out: Path, names) -> list[str]:
+    """Which of the file ``names`` a folder ``out`` holds ([] when it is no folder)."""
+    return [n for n in names if (out / n).exists()] if out.is_dir() else []
+
+
 def refuse_other_runs(out: str | Path, what: str) -> None:
     """InputError when ``out`` holds a ``track``/``refine`` or ``detect`` run's files: a
     folder of ``what`` (a study) is its own, and is not mixed with another command's."""
     out = Path(out)
-    found = [n for n in RUN_FILES + DETECT_FILES if (out / n).exists()] if out.is_dir() else []
+    found = _present(out, RUN_FILES + DETECT_FILES)
     if found:
         raise InputError(f"{out}: holds another command's run ({', '.join(found)}); a {what} folder is its "
                          "own: choose another --out")
@@ -83,7 +88,7 @@ def prepare_run_dir(out: str | Path, overwrite: bool = False, files=None) -> Pat
     out = Path(out)
     if (out / "study.json").is_file():
         raise InputError(f"{out}: holds a study (study.json, from compare or demo); choose another --out")
-    found = [n for n in (RUN_FILES if files is None else files) if (out / n).exists()] if out.is_dir() else []
+    found = _present(out, RUN_FILES if files is None else files)
     if found and not overwrite:
         raise InputError(f"{out}: holds another run's files ({', '.join(found)}); use --overwrite to "
                          "replace them, or choose another --out")
