@@ -29,7 +29,7 @@ frame carries all detections (one Python callback).
 
 Analytic Jacobian (xi = (omega, v), gtsam's right perturbation E Exp(xi)):
 
-    dpi/dX = A = [[fx/Z, 0, -fx X/Z^2], [0, fy/Z, -fy Y/Z^2]],
+    dpi/dX = A = [[fx/Z, 0, -fx X/Z^2], [0, fy/Z, -fy Y/Z^2]]   (:mod:`graphtrack.geometry.pinhole`),
     d pi(X_i)/d omega = rows P_i x (A R)_r,   d pi(X_i)/dv = A R
     d g_i/d omega = (R^T t) x n_i,   d g_i/dv = -n_i          (g_i = -N_i . X_i)
     d Z_i/d omega = P_i x R_3,   d Z_i/dv = R_3                (R_3: R's third row)
@@ -44,6 +44,7 @@ from scipy.optimize import linear_sum_assignment
 
 from factors.error_function import PoseErrorFunction
 from factors.robust import RobustKernel, make_kernel
+from graphtrack.geometry import pinhole
 from graphtrack.geometry.se3 import skew
 
 
@@ -101,16 +102,14 @@ class MarkerError(PoseErrorFunction):
         per step: this runs at every linearisation of every frame)."""
         R, t = E[:3, :3], E[:3, 3]
         M, S = self.samples.shape[:2]
-        fx, fy = self.K[0, 0], self.K[1, 1]
 
-        def pinhole(P):   # camera points, 1/Z (1 behind the camera), x/Z, y/Z, pixels
+        def camera(P):   # camera points, 1/Z and pixels (finite behind the camera: masked below)
             X = P @ R.T + t
-            iz = 1.0 / np.where(X[:, 2] > 1e-6, X[:, 2], 1.0)
-            x, y = X[:, 0] * iz, X[:, 1] * iz
-            return X, iz, x, y, np.stack([fx * x + self.K[0, 2], fy * y + self.K[1, 2]], -1)
+            iz = pinhole.inverse_depth(X[:, 2], 1.0)
+            return X, iz, pinhole.project(self.K, X, iz=iz)
 
         P = self.samples.reshape(-1, 3)
-        X, iz, x, y, u = pinhole(P)
+        X, iz, u = camera(P)
         front = X[:, 2] > 1e-6
         usable = front.reshape(M, S).all(1)
         if self.normals is None or not self.disc.any():
@@ -129,7 +128,7 @@ class MarkerError(PoseErrorFunction):
                 rows = np.flatnonzero(np.repeat(hidden, S)).reshape(-1, S)[:, 0]
                 P = P.copy()
                 P[rows] = self.P[hidden]
-                X, iz, x, y, u = pinhole(P)
+                X, iz, u = camera(P)
                 w[rows] = 1.0
                 live[rows] = False
                 W = w.reshape(M, S).sum(1)
@@ -137,15 +136,16 @@ class MarkerError(PoseErrorFunction):
             c = (w[:, None] * u).reshape(M, S, 2).sum(1) / Wd[:, None]
         if not jacobian:
             return c, usable, None
-        # P x v = P @ [v]x for the rows of R (cheaper than np.cross on every call)
+        # d u / d xi = A [-R [p]x, R], A = dpi/dX (zero at (0, 1), (1, 0)); row r of -R [p]x
+        # is p x R_r = p @ [R_r]x (cheaper than np.cross on every call)
+        A = pinhole.jacobian(self.K, X, iz=iz)
+        a00, a02, a11, a12 = A[:, 0, 0, None], A[:, 0, 2, None], A[:, 1, 1, None], A[:, 1, 2, None]
         PxR = [P @ skew(R[r]) for r in range(3)]
-        sx, sy = fx * iz, fy * iz
-        a0 = sx[:, None] * (R[0] - x[:, None] * R[2])            # d u_x / d(R p) . R
-        a1 = sy[:, None] * (R[1] - y[:, None] * R[2])
         du = np.empty((len(P), 2, 6))
-        du[:, 0, :3] = sx[:, None] * (PxR[0] - x[:, None] * PxR[2])
-        du[:, 1, :3] = sy[:, None] * (PxR[1] - y[:, None] * PxR[2])
-        du[:, 0, 3:], du[:, 1, 3:] = a0, a1
+        du[:, 0, :3] = a00 * PxR[0] + a02 * PxR[2]
+        du[:, 1, :3] = a11 * PxR[1] + a12 * PxR[2]
+        du[:, 0, 3:] = a00 * R[0] + a02 * R[2]
+        du[:, 1, 3:] = a11 * R[1] + a12 * R[2]
         if w is None:
             return c, usable, du.reshape(M, S, 2, 6).mean(1)
         dc = (w[:, None, None] * du).reshape(M, S, 2, 6).sum(1)

@@ -21,7 +21,7 @@ not to sigma / sqrt(frames) (docs/decisions/end-offset-state.md). Robustified on
 Analytic Jacobian, xi = (omega, v), gtsam's right perturbation E Exp(xi):
 
     dc/domega = -R [c_b]x,   dc/dv = R,   da/domega = -R [a_b]x,   da/dv = 0
-    dP = dP/dc dc + dP/da da,   dpi/dP = A = [[fx/Z, 0, -fx X/Z^2], [0, fy/Z, -fy Y/Z^2]]
+    dP = dP/dc dc + dP/da da,   dpi/dP = A (:mod:`graphtrack.geometry.pinhole`)
     dz/dxi = d^T A dP / sigma,   dz/de = 1 / sigma
 """
 from __future__ import annotations
@@ -32,6 +32,7 @@ import numpy as np
 from factors.edge_bias import BIAS_DIM, END_OFFSET
 from factors.error_function import PoseBiasErrorFunction
 from factors.robust import RobustKernel, make_kernel
+from graphtrack.geometry import pinhole
 from graphtrack.geometry.se3 import skew
 from graphtrack.geometry.shaft_end import front_point_jacobian
 
@@ -59,15 +60,12 @@ class ShaftEndError(PoseBiasErrorFunction):
         R, t = E[:3, :3], E[:3, 3]
         c, a = R @ self.c_b + t, R @ self.a_b
         P, dP_dc, dP_da = front_point_jacobian(c, a, self.r)
-        X, Y, Z = P
-        if Z <= 1e-6:
+        if P[2] <= 1e-6:
             return None, None
-        fx, fy = self.K[0, 0], self.K[1, 1]
-        u = np.array([fx * X / Z + self.K[0, 2], fy * Y / Z + self.K[1, 2]])
-        s = float(self.d @ (u - self.p))
+        s = float(self.d @ (pinhole.project(self.K, P) - self.p))
         if not jacobian:
             return s, None
-        A = np.array([[fx / Z, 0.0, -fx * X / Z ** 2], [0.0, fy / Z, -fy * Y / Z ** 2]])
+        A = pinhole.jacobian(self.K, P)
         dc = np.hstack([-R @ skew(self.c_b), R])
         da = np.hstack([-R @ skew(self.a_b), np.zeros((3, 3))])
         return s, self.d @ A @ (dP_dc @ dc + dP_da @ da)

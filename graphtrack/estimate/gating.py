@@ -3,7 +3,7 @@ end's along the shaft (:func:`gate_along`).
 
 A marker point X (camera frame, at the current estimate E_t) moves under a left
 correction (b, w) of E as dX = b + w x X = A(X) (b, w), A = [I, -[X]x]; its
-projection moves by J(X) dX, J the pinhole Jacobian
+projection moves by J(X) dX, J the pinhole Jacobian (:mod:`graphtrack.geometry.pinhole`)
 [[f_x / z, 0, -f_x x / z^2], [0, f_y / z, -f_y y / z^2]]. With C (6x6) the
 covariance of (b, w) (m, rad; the estimators' ``Estimate.cov``), the predicted
 marker's image covariance is P = J A C A^T J^T (px^2). The gate (px) is
@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from graphtrack.geometry import pinhole
+
 N_SIGMA = 3.0          #: gate half-width in standard deviations of the predicted marker
 CEIL_PX = 150.0        #: widest gate (detection pixels)
 #: the smoother's gate in sigmas: a 2-D residual's chi^2_2 99.9 % point, sqrt(-2 ln 0.001)
@@ -40,15 +42,11 @@ N_SIGMA_2D = float(np.sqrt(-2.0 * np.log(1e-3)))
 
 
 def marker_image_covariances(points: np.ndarray, K: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """P_i (M, 2, 2) px^2 of camera-frame points (M, 3) m under a left (b, w) covariance cov (6, 6)."""
+    """P_i (M, 2, 2) px^2 of camera-frame points (M, 3) m under a left (b, w) covariance cov (6, 6);
+    NaN for a point behind the camera."""
     X = np.asarray(points, float).reshape(-1, 3)
     x, y, z = X[:, 0], X[:, 1], X[:, 2]
-    fx, fy = K[0, 0], K[1, 1]
-    J = np.zeros((len(X), 2, 3))
-    J[:, 0, 0] = fx / z
-    J[:, 0, 2] = -fx * x / z ** 2
-    J[:, 1, 1] = fy / z
-    J[:, 1, 2] = -fy * y / z ** 2
+    J = pinhole.jacobian(K, X)              # NaN for a point behind the camera
     A = np.zeros((len(X), 3, 6))
     A[:, :, :3] = np.eye(3)
     A[:, 0, 4], A[:, 0, 5] = z, -y        # -[X]x: w x X = (w_y z - w_z y, w_z x - w_x z, w_x y - w_y x)

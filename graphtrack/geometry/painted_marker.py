@@ -37,6 +37,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from graphtrack.geometry import pinhole
+
 
 @lru_cache(maxsize=8)
 def _unit_pattern(n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -91,12 +93,9 @@ def disc_centroid(X: np.ndarray, N: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Image centroids (..., 2) px of discs sampled at camera points X (..., S, 3)
     with outward normals N (..., S, 3) (see the module doc); NaN where hidden."""
     X, N = np.asarray(X, float), np.asarray(N, float)
-    Z = X[..., 2]
-    ok = Z > 1e-9
     g = np.maximum(-(N * X).sum(-1), 0.0)
-    w = np.where(ok, g / np.where(ok, Z, 1.0) ** 3, 0.0)
-    Zs = np.where(ok, Z, 1.0)
-    u = np.stack([K[0, 0] * X[..., 0] / Zs + K[0, 2], K[1, 1] * X[..., 1] / Zs + K[1, 2]], -1)
+    w = g * pinhole.inverse_depth(X[..., 2], 0.0) ** 3      # 0 behind the camera
+    u = pinhole.project(K, X, behind=0.0)                  # finite; weighted 0 behind the camera
     W = w.sum(-1)
     c = (w[..., None] * u).sum(-2) / np.where(W > 0, W, 1.0)[..., None]
     return np.where((W > 0)[..., None], c, np.nan)

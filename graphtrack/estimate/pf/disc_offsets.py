@@ -28,6 +28,7 @@ import dataclasses
 import numpy as np
 
 from factors.marker import associate
+from graphtrack.geometry import pinhole
 from graphtrack.geometry.painted_marker import disc_centroid
 from graphtrack.robot.features import base_features, marker_discs
 from graphtrack.robot.kinematics import link_transforms
@@ -73,8 +74,7 @@ class DiscOffsets:
         Rt, t = C[:, :3, :3].transpose(0, 2, 1), C[:, None, :3, 3]
         c = disc_centroid(np.matmul(self.X, Rt) + t, np.matmul(self.N, Rt), K)
         P = (np.matmul(self.P[:, None, :], Rt) + t)[:, 0]
-        z = np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)
-        centre = np.stack([K[0, 0] * P[:, 0] / z + K[0, 2], K[1, 1] * P[:, 1] / z + K[1, 2]], -1)
+        centre = pinhole.project(K, P)                                   # NaN behind the camera
         c[self.point] = centre[self.point]                 # a point marker: its detection is its centre
         return c, c - centre
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from graphtrack.geometry import pinhole
 from graphtrack.geometry.cylinder import line_angles, project_cylinder_batch
 from graphtrack.geometry.painted_marker import on_surface
 from graphtrack.geometry.se3 import so3_exp_batch
@@ -131,18 +132,13 @@ def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray, extrinsic: np
     rho, cos, sin, valid = project_cylinder_batch(p0, W[:, 1], r, K)
     M = len(on_shaft)
     pts = W[:, 2:2 + M] + b[:, None, :]  # (3, M, N)
-    z = pts[2]
-    front = z > 1e-9
-    inv = 1.0 / np.where(front, z, 1e-9)
-    u = K[0, 0] * pts[0] * inv + K[0, 2]
-    v = K[1, 1] * pts[1] * inv + K[1, 2]
+    front = pts[2] > pinhole.Z_MIN
+    u, v = pinhole.pixels(K, pts[0], pts[1], pts[2], behind=1e9)   # finite; not visible behind the camera
     nrm = W[:, 2 + M:2 + 2 * M]
     facing = (nrm * pts).sum(axis=0) < 0.0
     visible = front & (facing | ~on_shaft[:, None])
     h = Hypotheses(rho, cos, sin, valid, u, v, visible, R)
     if geometry.has_end:
         P = front_point((W[:, k - 1] + b).T, W[:, 1].T, r)       # (N, 3)
-        iz = 1.0 / np.where(P[:, 2] > 1e-9, P[:, 2], np.nan)      # behind the camera: NaN
-        h.end_u = K[0, 0] * P[:, 0] * iz + K[0, 2]
-        h.end_v = K[1, 1] * P[:, 1] * iz + K[1, 2]
+        h.end_u, h.end_v = pinhole.pixels(K, P[:, 0], P[:, 1], P[:, 2])   # behind the camera: NaN
     return h
