@@ -45,6 +45,7 @@ from graphtrack.detect.base import Detection, detector_image
 from graphtrack.detect.hough import hough_lines, suppress
 from graphtrack.detect.line_refit import refit_lines
 from graphtrack.detect.markers import MarkerConfig, detect_markers
+from graphtrack.geometry.image_scale import scale_points
 from graphtrack.geometry.lines import line_difference
 
 
@@ -211,7 +212,7 @@ class CannyDetector:
             phi = np.mod(np.arctan2(dy[ys, xs].astype(float), dx[ys, xs].astype(float)), np.pi)
             lines = self.hough(edges, s, (H, W), xs, ys, phi)
         if len(lines):
-            X = np.stack([(xs + 0.5) / s_x - 0.5, (ys + 0.5) / s_y - 0.5], 1)
+            X = scale_points(np.stack([xs, ys], 1), 1.0 / s_x, 1.0 / s_y)
             lines, segs = self.candidates(lines, X, phi, s)
             det.segments = segs
             big = big & self._near_segments(segs, (H, W))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from graphtrack.geometry.image_scale import scale_lines
 from graphtrack.geometry.lines import canonical, line_difference
 
 
@@ -78,8 +79,7 @@ def hough_lines(edges: np.ndarray, s: float, shape, *, rho_res: float, theta_res
         return np.zeros((0, 2))
     hl = np.concatenate(found).astype(float)
     hl = hl[np.argsort(-hl[:, 2], kind="stable")][:max_hough]
-    c, sn = np.cos(hl[:, 1]), np.sin(hl[:, 1])
-    rho = (hl[:, 0] - (0.5 * s - 0.5) * (c + sn)) / s
+    rho = scale_lines(hl[:, :2], 1.0 / s)[:, 0]       # detected at scale s -> full-size px
     rho, theta = canonical(rho, hl[:, 1])
     if cluster is not None:
         H, W = shape

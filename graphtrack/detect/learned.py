@@ -56,6 +56,7 @@ from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.segments import ExtractConfig, extract_segments
 from graphtrack.detect.subpixel import SubpixelConfig, refine_segments
 from graphtrack.errors import InputError, one_line
+from graphtrack.geometry.image_scale import scale_points
 from graphtrack.geometry.lines import line_through
 
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent.parent / "data" / "learned_detector.pt"
@@ -219,10 +220,7 @@ class LearnedDetector:
         h, w = img.shape[:2]
         seg_s, _ = extract_segments(L, J, self.extract)
         sx, sy = w / L.shape[1], h / L.shape[0]
-        seg = np.zeros((len(seg_s), 4))
-        if len(seg_s):
-            seg[:, 0::2] = (seg_s[:, 0::2] + 0.5) * sx - 0.5
-            seg[:, 1::2] = (seg_s[:, 1::2] + 0.5) * sy - 0.5
+        seg = scale_points(np.reshape(seg_s, (-1, 4)), sx, sy)
         H = cv2.resize(L, (w, h), interpolation=cv2.INTER_LINEAR)
         det = Detection(segments=seg, heatmap=H, markers=markers)
         if len(seg):

@@ -42,6 +42,7 @@ import numpy as np
 from graphtrack.detect.base import OBSERVATION_MODELS, Detection, Observation
 from graphtrack.detect.pixel_sets import ALPHA, BETA, carry_to_segment, endpoints_set, line_set
 from graphtrack.detect.ransac import RansacConfig, best_line, seeded_rng
+from graphtrack.geometry.image_scale import scale_lines, scale_points
 from graphtrack.geometry.lines import line_through
 
 
@@ -132,27 +133,13 @@ def make_observation(detection: Detection, model: str, alpha: float = ALPHA, bet
     return obs
 
 
-def _scale_points(p, s: float) -> np.ndarray:
-    """Pixel centres of an image scaled by s: x' = (x + 0.5) s - 0.5 (as Camera.scaled)."""
-    return (np.asarray(p, float) + 0.5) * s - 0.5
-
-
-def _scale_lines(lines, s: float) -> np.ndarray:
-    """cos(t) x + sin(t) y = rho keeps its angle; rho' = s (rho + c/2) - c/2, c = cos t + sin t."""
-    lines = np.asarray(lines, float).reshape(-1, 2).copy()
-    if len(lines):
-        c = np.cos(lines[:, 1]) + np.sin(lines[:, 1])
-        lines[:, 0] = s * (lines[:, 0] + c / 2) - c / 2
-    return lines
-
-
 def scale_observation(obs: Observation, s: float) -> Observation:
     """The same observation in the pixels of an image scaled by ``s``."""
     if s == 1.0:
         return obs
-    return Observation(model=obs.model, lines=_scale_lines(obs.lines, s),
-                       pixels=[_scale_points(p, s) for p in obs.pixels],
-                       markers=_scale_points(np.asarray(obs.markers, float).reshape(-1, 2), s),
+    return Observation(model=obs.model, lines=scale_lines(obs.lines, s),
+                       pixels=[scale_points(p, s) for p in obs.pixels],
+                       markers=scale_points(np.asarray(obs.markers, float).reshape(-1, 2), s),
                        edge_ids=np.asarray(obs.edge_ids).copy(), bands=np.asarray(obs.bands, bool).copy(),
                        shaft_end=_scale_end(obs.shaft_end, s))
 
@@ -170,10 +157,10 @@ def scale_detection(det: Detection, s: float) -> Detection:
         return det
 
     def segs(a):
-        return _scale_points(np.asarray(a, float).reshape(-1, 2, 2), s).reshape(-1, 4)
+        return scale_points(np.asarray(a, float).reshape(-1, 2, 2), s).reshape(-1, 4)
 
     return Detection(segments=segs(det.segments), heatmap=det.heatmap, shaft_segments=segs(det.shaft_segments),
-                     shaft_lines=_scale_lines(det.shaft_lines, s),
-                     markers=_scale_points(np.asarray(det.markers, float).reshape(-1, 2), s),
+                     shaft_lines=scale_lines(det.shaft_lines, s),
+                     markers=scale_points(np.asarray(det.markers, float).reshape(-1, 2), s),
                      ms=det.ms, edge_ids=np.asarray(det.edge_ids).copy(),
                      refined=np.asarray(det.refined, bool).copy())

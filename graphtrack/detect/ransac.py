@@ -59,6 +59,8 @@ def fit_line_tls(points: np.ndarray, weights: np.ndarray | None = None) -> np.nd
     through points (P, 2) px, P >= 2, with optional weights (P,); NaNs without points."""
     p = np.asarray(points, float)
     w = np.ones(len(p)) if weights is None else np.asarray(weights, float)
+    if len(p) == 0:
+        return np.array([np.nan, np.nan])
     c = p.mean(0)
     q = p - c
     x, y = q[:, 0], q[:, 1]

@@ -33,6 +33,7 @@ from graphtrack.detect.association import AssociationConfig, associate
 from graphtrack.detect.base import Detection, detector_image
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.errors import InputError
+from graphtrack.geometry.image_scale import scale_points
 from graphtrack.geometry.lines import line_through
 
 
@@ -110,8 +111,7 @@ class Sold2Detector:
         inside = np.all((seg[:, 0::2] <= ws - 0.5) & (seg[:, 1::2] <= hs - 0.5), axis=1)
         seg = seg[inside]
         sx, sy = w / ws, h / hs
-        seg[:, 0::2] = (seg[:, 0::2] + 0.5) * sx - 0.5
-        seg[:, 1::2] = (seg[:, 1::2] + 0.5) * sy - 0.5
+        seg = scale_points(seg, sx, sy)
         H = heat if (hs, ws) == (h, w) else cv2.resize(heat, (w, h), interpolation=cv2.INTER_LINEAR)
         det = Detection(segments=seg, heatmap=H, markers=markers)
         if len(seg):

@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 
 from graphtrack.errors import InputError, is_number, number_list, read_yaml
+from graphtrack.geometry.image_scale import scale_points
 from graphtrack.geometry.se3 import is_rotation
 
 
@@ -185,8 +186,7 @@ class Camera:
         K = self.K.copy()
         K[0, 0] *= s
         K[1, 1] *= s
-        K[0, 2] = (K[0, 2] + 0.5) * s - 0.5
-        K[1, 2] = (K[1, 2] + 0.5) * s - 0.5
+        K[:2, 2] = scale_points(K[:2, 2], s)
         return Camera(K, self.dist.copy(), int(round(self.height * s)), int(round(self.width * s)))
 
 

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from graphtrack.geometry.cylinder import contour_generators, project_cylinder
+from graphtrack.geometry.image_scale import scale_points
 from graphtrack.robot.features import base_features
 from graphtrack.robot.psm import SHAFT_END
 
@@ -92,10 +93,7 @@ def shaft_edge_segments(robot, q: np.ndarray, E: np.ndarray, K: np.ndarray, heig
 
 def to_reduced(segments: np.ndarray, sx: float, sy: float) -> np.ndarray:
     """Full-resolution segments -> reduced-scale px (x_s = (x + 0.5) s - 0.5)."""
-    s = np.array(segments, float).reshape(-1, 4).copy()
-    s[:, 0::2] = (s[:, 0::2] + 0.5) * sx - 0.5
-    s[:, 1::2] = (s[:, 1::2] + 0.5) * sy - 0.5
-    return s
+    return scale_points(np.reshape(segments, (-1, 4)), sx, sy)
 
 
 def target_maps(segments, h: int, w: int):
