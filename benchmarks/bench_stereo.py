@@ -10,7 +10,9 @@ readings placed by E_t, E_t . tip(q~), against the exact tip, truth.csv's tip_x,
 tip_z) and the 2-D tip error in the left raw image (px, against the exact tip_u, tip_v).
 Reported: each view's mean over all frames, the ratio stereo / mono, and the paired
 difference stereo - mono with its moving-block bootstrap interval
-(:func:`graphtrack.eval.metrics.paired_difference`, as bench_accuracy.py), per estimator.
+(:func:`graphtrack.eval.metrics.paired_difference`, as bench_accuracy.py), per estimator;
+and the 3-D error's mean components along the true tip's viewing ray (|depth|) and
+across it (lateral), mm, per view (truth_errors.csv's tip_depth_mm, tip_lateral_mm).
 These figures do not depend on the machine (the speed section's do), so this section
 may be re-run on any machine.
 """
@@ -49,8 +51,8 @@ def _track(path: Path, out: Path, estimator: str, stereo: bool) -> dict:
     m = track(path, out, opts, progress=False, quiet=True, overwrite=True)
     with (out / "truth_errors.csv").open() as f:
         rows = list(csv.DictReader(f))
-    m["_tip_mm"] = np.array([float(r["tip_mm"]) for r in rows])
-    m["_tip2d_px"] = np.array([float(r["tip2d_px"]) for r in rows])
+    for key in ("tip_mm", "tip2d_px", "tip_depth_mm", "tip_lateral_mm"):
+        m["_" + key] = np.array([float(r[key]) for r in rows])
     return m
 
 
@@ -81,6 +83,13 @@ def _accuracy(out: dict, work: Path) -> None:
             lines.append(f"| {est} | {name} ({unit}) | {np.nanmean(m):.3f} | {np.nanmean(s):.3f} | {ratio:.2f} | "
                          f"{pooled['mean']:+.3f} [{pooled['low']:+.3f}, {pooled['high']:+.3f}] |")
             out[f"{est}_{name}_diff_per_recording"] = [d["mean"] for d in diffs]
+        for view in ("mono", "stereo"):     # where the 3-D error lies: along the viewing ray or across it
+            rs = [runs[r, s_, est, view == "stereo"] for r, s_ in RECORDINGS]
+            out[f"{est}_tip3d_depth_{view}"] = float(np.nanmean(np.abs(np.concatenate([x["_tip_depth_mm"] for x in rs]))))
+            out[f"{est}_tip3d_lateral_{view}"] = float(np.nanmean(np.concatenate([x["_tip_lateral_mm"] for x in rs])))
+        lines.append(f"| {est} | tip3d depth / lateral (mm) | {out[f'{est}_tip3d_depth_mono']:.3f} / "
+                     f"{out[f'{est}_tip3d_lateral_mono']:.3f} | {out[f'{est}_tip3d_depth_stereo']:.3f} / "
+                     f"{out[f'{est}_tip3d_lateral_stereo']:.3f} | | |")
     out["left_only_frames"] = int(sum(runs[k].get("frames_left_only", 0) for k in runs))
     out.setdefault("tables", {})["stereo vs mono, learned + line-intensities, against truth.csv"] = "\n".join(lines)
 

@@ -86,6 +86,39 @@ def test_truth_errors_and_3d_tip(tmp_path):
     assert doc["nees"]["dof"] == 6
 
 
+def test_3d_tip_error_splits_into_depth_and_lateral(tmp_path):
+    """Hand-computed: the estimate's tip 3 mm beyond the true tip along its viewing ray
+    and 4 mm across it: depth 3, lateral 4, 3-D 5 mm; 3 mm nearer: depth -3."""
+    from graphtrack.io.trajectory import TrajectoryWriter, read_trajectory
+
+    tip = np.array([0.02, 0.0, 0.0])                       # base frame, m
+    E_true = np.eye(4)
+    E_true[2, 3] = 0.2                                     # true tip (0.02, 0, 0.2) m
+    ray = np.array([0.02, 0.0, 0.2]) / np.linalg.norm([0.02, 0.0, 0.2])
+    Es = {"truth": [E_true, E_true]}
+    Es["est"] = []
+    for depth in (3e-3, -3e-3):
+        E = E_true.copy()
+        E[:3, 3] += depth * ray + np.array([0.0, 4e-3, 0.0])
+        Es["est"].append(E)
+    for name, poses in Es.items():
+        (tmp_path / name).mkdir()
+        with TrajectoryWriter(tmp_path / name) as w:
+            for k, E in enumerate(poses):
+                w.write(k, 0.1 * k, E, (100.0, 50.0), 10.0)
+    errs = M.truth_errors(read_trajectory(tmp_path / "est" / "trajectory.csv"),
+                          read_trajectory(tmp_path / "truth" / "trajectory.csv"), {0: tip, 1: tip})
+    np.testing.assert_allclose(errs["tip_mm"], 5.0)
+    np.testing.assert_allclose(errs["tip_depth_mm"], [3.0, -3.0])
+    np.testing.assert_allclose(errs["tip_lateral_mm"], 4.0)
+    doc = M.truth_metrics(errs)
+    assert doc["tip_error_3d_depth_mm"]["mean"] == pytest.approx(3.0)
+    assert doc["tip_error_3d_lateral_mm"]["mean"] == pytest.approx(4.0)
+    M.write_errors_csv(tmp_path / "e.csv", errs)
+    head = (tmp_path / "e.csv").read_text().splitlines()[0].split(",")
+    assert head[-2:] == ["tip_depth_mm", "tip_lateral_mm"]
+
+
 # -- paired_difference: oracles from normal theory ------------------------------------
 def test_paired_difference_of_a_constant_shift_is_that_shift_with_no_spread():
     a = np.linspace(1.0, 3.0, 90)

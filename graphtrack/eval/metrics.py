@@ -196,7 +196,10 @@ def truth_errors(est: dict, truth: dict, tips_base: dict[int, np.ndarray] | None
     |E_est tip - E_true tip| in mm. When truth holds camera-frame tip columns
     (tip_x, tip_y, tip_z, metres) those are the true tip instead.
     Returns arrays: frame, trans_mm, rot_deg, tip_mm, tip2d_px (against
-    truth's tip_u/v) and nees (when est has the std columns).
+    truth's tip_u/v), tip_depth_mm and tip_lateral_mm (the 3-D error e = p_est - p_true
+    split along the true tip's viewing ray r = p_true / |p_true|: depth e . r, signed,
+    positive when the estimate lies beyond the truth; lateral |e - (e . r) r|; so that
+    tip_mm^2 = depth^2 + lateral^2) and nees (when est has the std columns).
     """
     ti = {int(f): i for i, f in enumerate(truth["frame"])}
     pairs = [(i, ti[int(f)]) for i, f in enumerate(est["frame"]) if int(f) in ti]
@@ -207,7 +210,7 @@ def truth_errors(est: dict, truth: dict, tips_base: dict[int, np.ndarray] | None
     trans, rot = pose_errors(Ee, Et)
     out = {"frame": frames, "trans_mm": trans, "rot_deg": rot,
            "tip2d_px": np.linalg.norm(est["tip"][ie] - truth["tip"][it], axis=-1)}
-    tip_mm = np.full(len(frames), np.nan)
+    tip_mm, depth, lateral = (np.full(len(frames), np.nan) for _ in range(3))
     tx = truth.get("extras", {})
     true_cam = None
     if all(k in tx for k in ("tip_x", "tip_y", "tip_z")):
@@ -219,10 +222,10 @@ def truth_errors(est: dict, truth: dict, tips_base: dict[int, np.ndarray] | None
                 continue
             pe = Ee[k, :3, :3] @ tb + Ee[k, :3, 3]
             pt = true_cam[k] if true_cam is not None else Et[k, :3, :3] @ tb + Et[k, :3, 3]
-            tip_mm[k] = 1e3 * np.linalg.norm(pe - pt)
-    elif true_cam is not None:
-        pass  # no readings: the estimated 3-D tip is unknown
-    out["tip_mm"] = tip_mm
+            e, r = 1e3 * (pe - pt), pt / np.linalg.norm(pt)
+            tip_mm[k], depth[k] = np.linalg.norm(e), e @ r
+            lateral[k] = np.linalg.norm(e - depth[k] * r)
+    out.update(tip_mm=tip_mm, tip_depth_mm=depth, tip_lateral_mm=lateral)   # NaN without readings
     ex = est.get("extras", {})
     if all(c in ex for c in STD_COLUMNS):
         std = np.stack([ex[c] for c in STD_COLUMNS], -1)[ie].astype(float)
@@ -234,6 +237,8 @@ def truth_metrics(errors: dict) -> dict:
     """Summaries (mean, std, median, p95) of :func:`truth_errors`' arrays for metrics.json."""
     doc = {"truth_frames": int(len(errors["frame"])),
            "tip_error_3d_mm": summary(errors["tip_mm"]),
+           "tip_error_3d_depth_mm": summary(np.abs(errors["tip_depth_mm"])),
+           "tip_error_3d_lateral_mm": summary(errors["tip_lateral_mm"]),
            "translation_error_mm": summary(errors["trans_mm"]),
            "rotation_error_deg": summary(errors["rot_deg"]),
            "tip_error_vs_truth_px": summary(errors["tip2d_px"])}
@@ -248,9 +253,11 @@ def truth_metrics(errors: dict) -> dict:
 
 
 def write_errors_csv(path: str | Path, errors: dict) -> None:
-    """Per-frame truth errors as CSV (frame, trans_mm, rot_deg, tip_mm, tip2d_px[, nees]),
-    written whole or not at all; InputError naming the file when it cannot be written."""
-    cols = [c for c in ("trans_mm", "rot_deg", "tip_mm", "tip2d_px", "nees") if c in errors]
+    """Per-frame truth errors as CSV (frame, trans_mm, rot_deg, tip_mm, tip2d_px,
+    tip_depth_mm, tip_lateral_mm[, nees]), written whole or not at all; InputError naming
+    the file when it cannot be written."""
+    cols = [c for c in ("trans_mm", "rot_deg", "tip_mm", "tip2d_px", "tip_depth_mm", "tip_lateral_mm", "nees")
+            if c in errors]
     lines = [",".join(["frame"] + cols)]
     lines += [",".join([str(int(fr))] + [repr(float(errors[c][k])) for c in cols])
               for k, fr in enumerate(errors["frame"])]
