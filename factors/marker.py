@@ -110,7 +110,7 @@ class MarkerError(PoseErrorFunction):
 
         P = self.samples.reshape(-1, 3)
         X, iz, u = camera(P)
-        front = X[:, 2] > 1e-6
+        front = X[:, 2] > pinhole.Z_MIN
         usable = front.reshape(M, S).all(1)
         if self.normals is None or not self.disc.any():
             c = u.reshape(M, S, 2).mean(1)

@@ -60,7 +60,7 @@ class ShaftEndError(PoseBiasErrorFunction):
         R, t = E[:3, :3], E[:3, 3]
         c, a = R @ self.c_b + t, R @ self.a_b
         P, dP_dc, dP_da = front_point_jacobian(c, a, self.r)
-        if P[2] <= 1e-6:
+        if P[2] <= pinhole.Z_MIN:
             return None, None
         s = float(self.d @ (pinhole.project(self.K, P) - self.p))
         if not jacobian:

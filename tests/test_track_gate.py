@@ -116,6 +116,7 @@ def test_gate_along_matches_a_monte_carlo_spread():
     g = gate_along(X, d, K, cov, sigma=0.0, floor=0.0)
     assert g / 3.0 == pytest.approx(spread, rel=0.05)
     assert gate_along(X, d, K, cov, sigma=0.0, floor=1e4) == 1e4          # never below the floor
+    assert gate_along(np.array([0.01, 0.0, -0.1]), d, K, cov, sigma=1.0, floor=5.0) == np.inf   # behind the camera
     assert gate_along(X, d, K, np.zeros((6, 6)), sigma=2.0, floor=0.0) == pytest.approx(6.0)
 
 

@@ -95,7 +95,10 @@ def gate_along(point: np.ndarray, direction: np.ndarray, K: np.ndarray, cov: np.
     """The gate (px) along a unit image direction d of a camera-frame point's (3,) projection:
     max(floor, n_sigma sqrt(d^T P d + sigma^2)), P its image covariance under the left (b, w)
     covariance ``cov`` (:func:`marker_image_covariances`), sigma (px) the detection's own
-    noise along d. The shaft end's gate: only its position along the shaft is scored."""
+    noise along d; inf for a point behind the camera (no image covariance). The shaft end's
+    gate: only its position along the shaft is scored."""
     P = marker_image_covariances(np.asarray(point, float)[None], K, cov)[0]
+    if not np.all(np.isfinite(P)):
+        return float("inf")
     d = np.asarray(direction, float)
     return max(float(floor), n_sigma * float(np.sqrt(max(d @ P @ d, 0.0) + sigma * sigma)))

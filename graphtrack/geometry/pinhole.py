@@ -24,7 +24,7 @@ Z_MIN = 1e-9
 
 
 def inverse_depth(Z, behind: float = np.nan) -> np.ndarray:
-    """1 / Z (1/m) for depths Z (any shape), ``behind`` where Z <= Z_MIN."""
+    """1 / Z (1/m) for depths Z (any shape), ``behind`` (finite or NaN) where Z <= Z_MIN."""
     stand_in = np.inf if behind == 0 else 1.0 / behind     # the depth whose reciprocal is `behind`
     return 1.0 / np.where(np.asarray(Z) > Z_MIN, Z, stand_in)
 
