@@ -196,7 +196,8 @@ def _write_results(path: Path, status: list) -> None:
         cols = ["tip_error_px.mean", "tip_error_px.median", "tip_error_px.p95",
                 "tip_error_percent_diagonal.mean", "tip_error_percent_diagonal.std",
                 "tip_error_percent_diagonal.median", "tip_error_percent_diagonal.p95",
-                "tip_error_3d_mm.mean", "translation_error_mm.mean", "rotation_error_deg.mean",
+                "tip_error_3d_mm.mean", "tip_error_3d_depth_mm.mean", "tip_error_3d_lateral_mm.mean",
+                "translation_error_mm.mean", "rotation_error_deg.mean",
                 "nees.mean", "runtime_ms.median", "fps", "fps_steady", "frames_tracked", "frames_skipped"]
         w.writerow(["recording", "observation", "estimator", "seed", "state"] + cols + ["error"])
         for c, st in status:
