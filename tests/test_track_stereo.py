@@ -10,7 +10,7 @@ import pytest
 
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.eval.overlay import video_frame_count
-from graphtrack.eval.stereo import stereo_tip_metrics, triangulate
+from graphtrack.eval.stereo import disparity_depth_mm_per_px, stereo_tip_metrics, triangulate
 from graphtrack.geometry.camera import Calibration, Camera
 from graphtrack.sim import simulate
 from graphtrack.study.cells import StudyOptions
@@ -129,6 +129,34 @@ def test_triangulated_labels_hand_computed():
     expect = np.hypot(1000 * 0.005 / 0.101 - 50.0, 1000 * 0.020 / 0.101 - 200.0)
     assert doc["tip_error_right_px"]["mean"] == pytest.approx(expect, rel=1e-9)
     assert stereo_tip_metrics(Calibration(cal.left), [7], est, {7: uL}, {7: uR}) == {}
+
+
+def test_labels_depth_per_pixel_of_disparity_matches_triangulation():
+    """labels_3d_mm_per_px against cv2's triangulation on the rectified rig above: moving the
+    right label 0.1 px (disparity) moves the triangulated point along z by 0.1 * z^2 / (f b);
+    at z = 100 mm, f = 1000 px, b = 5 mm that is 2 mm per px."""
+    K = np.array([[1000.0, 0, 479.5], [0, 1000.0, 269.5], [0, 0, 1]])
+    cal = Calibration(Camera(K, np.zeros(5), 540, 960), Camera(K.copy(), np.zeros(5), 540, 960),
+                      np.eye(3), np.array([-0.005, 0.0, 0.0]))
+    uL, uR = np.array([[479.5, 269.5]]), np.array([[429.5, 269.5]])            # the point (0, 0, 100) mm
+    dz = 1e3 * (triangulate(cal, uL, uR - [0.1, 0.0])[0, 2] - triangulate(cal, uL, uR + [0.1, 0.0])[0, 2]) / 0.2
+    assert disparity_depth_mm_per_px(cal, 0.1) == pytest.approx(2.0)
+    assert disparity_depth_mm_per_px(cal, 0.1) == pytest.approx(abs(dz), rel=1e-3)
+    doc = stereo_tip_metrics(cal, [7], np.array([[0.0, 0.0, 0.1]]), {7: uL[0]}, {7: uR[0]})
+    assert doc["labels_3d_mm_per_px"] == pytest.approx(2.0)
+
+
+def test_track_prints_the_stereo_and_truth_figures():
+    from graphtrack.commands.track import scored_lines
+
+    doc = {"tip_error_right_px": {"mean": 1.5}, "frames_scored_right": 40,
+           "tip_error_3d_labels_mm": {"mean": 12.0}, "labels_3d_mm_per_px": 9.4,
+           "tip_error_3d_mm": {"mean": 0.25}, "tip_error_3d_depth_mm": {"mean": 0.13},
+           "tip_error_3d_lateral_mm": {"mean": 0.2}}
+    lines = scored_lines(doc)
+    assert len(lines) == 3 and "1.50 px" in lines[0] and "9.4 mm of depth" in lines[1]
+    assert "0.250 mm mean (0.130 along the viewing ray, 0.200 across it)" in lines[2]
+    assert scored_lines({"tip_error_3d_mm": {"mean": float("nan")}}) == []      # nothing scored: no line
 
 
 def test_compare_plans_a_mono_stereo_axis(tmp_path):

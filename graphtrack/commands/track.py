@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 from graphtrack.commands.common import (HelpFormatter, add_source_arguments, add_threads_argument, output_path,
                                         source_from_args)
@@ -143,9 +144,38 @@ def run(args) -> int:
         keys = ("frames_tracked", "frames_skipped", "tip_error_px", "tip_error_percent_diagonal", "fps",
                 "estimator_report")
         print(json.dumps({k: result[k] for k in keys if k in result}, indent=2))
+        for line in scored_lines(result):
+            print(line)
+        written = ["metrics.json"] + (["truth_errors.csv"] if (Path(args.out) / "truth_errors.csv").is_file() else [])
         video = ", overlay.mp4" if args.video else ""
-        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, metrics.json{video}")
+        print(f"wrote {args.out}/trajectory.csv, trajectory.tum, {', '.join(written)}{video}")
     return 0
+
+
+def scored_lines(result: dict) -> list[str]:
+    """One line each for the figures metrics.json holds beyond the left image's labels: the
+    right image's tip error, the 3-D error against the triangulated labels, and against truth.csv
+    with its split along the viewing ray (stereo's gain is in depth)."""
+    def mean(key):
+        v = (result.get(key) or {}).get("mean")
+        return v if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+    lines = []
+    if mean("tip_error_right_px") is not None:
+        lines.append(f"right image: tip error {mean('tip_error_right_px'):.2f} px mean "
+                     f"({result.get('frames_scored_right', 0)} frames with labels_right.csv)")
+    if mean("tip_error_3d_labels_mm") is not None:
+        per_px = result.get("labels_3d_mm_per_px")
+        note = (f" (one pixel of disparity between the two labels is {per_px:.1f} mm of depth here)"
+                if isinstance(per_px, float) and math.isfinite(per_px) else "")
+        lines.append(f"3-D tip error against the triangulated labels: {mean('tip_error_3d_labels_mm'):.3f} mm mean{note}")
+    if mean("tip_error_3d_mm") is not None:
+        split = ""
+        if mean("tip_error_3d_depth_mm") is not None:
+            split = (f" ({mean('tip_error_3d_depth_mm'):.3f} along the viewing ray, "
+                     f"{mean('tip_error_3d_lateral_mm'):.3f} across it)")
+        lines.append(f"3-D tip error against truth.csv: {mean('tip_error_3d_mm'):.3f} mm mean{split}")
+    return lines
 
 
 def add_parser(sub):
