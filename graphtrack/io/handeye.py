@@ -75,15 +75,17 @@ def load_handeye(path: str | Path, arm: str | None = None) -> np.ndarray:
         matrix = " (a rotation matrix? cv2.Rodrigues turns one into this vector)" if rvec.size == 9 else ""
         raise InputError(f"{path}: key '{prefix}_rvec' has {rvec.size} values, expected 3: an axis-angle "
                          f"(Rodrigues) vector, radians{matrix}")
-    if not np.linalg.norm(t_mm) <= MAX_TRANSLATION_MM:
-        raise InputError(f"{path}: key '{prefix}_tvec' is {np.linalg.norm(t_mm):.4g} mm from the base; "
+    with np.errstate(over="ignore"):     # a value near 1e308: its norm is inf, refused below
+        t_norm, angle = float(np.linalg.norm(t_mm)), float(np.linalg.norm(rvec))
+    if not t_norm <= MAX_TRANSLATION_MM:
+        raise InputError(f"{path}: key '{prefix}_tvec' is {t_norm:.4g} mm from the base; "
                          f"expected at most {MAX_TRANSLATION_MM:g} mm (the file is in millimetres)")
-    if not np.linalg.norm(t_mm) >= MIN_TRANSLATION_MM:
-        raise InputError(f"{path}: key '{prefix}_tvec' puts the camera {np.linalg.norm(t_mm):.3g} mm from the "
+    if not t_norm >= MIN_TRANSLATION_MM:
+        raise InputError(f"{path}: key '{prefix}_tvec' puts the camera {t_norm:.3g} mm from the "
                          f"arm's base (remote centre of motion); expected at least {MIN_TRANSLATION_MM:g} mm "
                          "(the file is in millimetres: values in metres must be multiplied by 1000)")
-    if not np.linalg.norm(rvec) <= MAX_ROTATION_RAD:
-        raise InputError(f"{path}: key '{prefix}_rvec' turns {np.linalg.norm(rvec):.4g} rad; an axis-angle "
+    if not angle <= MAX_ROTATION_RAD:
+        raise InputError(f"{path}: key '{prefix}_rvec' turns {angle:.4g} rad; an axis-angle "
                          "vector's angle is at most 2 pi")
     return bw_to_matrix(np.concatenate([t_mm / 1000.0, rvec]))
 
