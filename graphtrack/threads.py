@@ -10,6 +10,7 @@ counts: :func:`limit_threads` (n) runs it as the command line does.
 """
 from __future__ import annotations
 
+import numbers
 import os
 
 #: environment variables read by BLAS / OpenMP runtimes when they load (and by child processes)
@@ -35,6 +36,8 @@ def limit_threads(n: int = DEFAULT_THREADS) -> None:
     import torch
     from threadpoolctl import threadpool_limits
 
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+        raise ValueError(f"limit_threads: n must be a whole number of at least 1, got {n!r}")
     n = int(n)
     set_thread_environment(n)
     threadpool_limits(n)

@@ -107,7 +107,7 @@ def test_simulate_and_track_refuse_a_negative_seed_and_absurd_particles(tmp_path
     assert not (tmp_path / "s").exists()
     code, err = run_cli(["track", tmp_path / "none", "--out", tmp_path / "o", "--estimator", "pf",
                          "--particles", "1000000000"], capsys)
-    assert code == 2 and "--particles must be between 1 and 100000" in error_line(err)
+    assert code == 2 and "--particles must be a whole number between 1 and 100000" in error_line(err)
 
 
 # -- robot ----------------------------------------------------------------------------------

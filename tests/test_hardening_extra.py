@@ -125,13 +125,13 @@ EXIT2 = [
     ("image_topic_override_absent", "bag", keep, ("--image-topic", "/nope"),
      r"recording\.bag: no left image topic \(/nope\)"),
     ("arm_not_recorded", "bag", keep, ("--arm", "PSM2"), r"no messages on the joint topic of PSM2.*--arm PSM1"),
-    ("max_frames_0", "folder", keep, ("--max-frames", "0"), r"--max-frames must be at least 1"),
+    ("max_frames_0", "folder", keep, ("--max-frames", "0"), r"--max-frames must be a whole number of at least 1"),
     ("seed_negative", "folder", keep, ("--seed", "-1"), r"--seed must be an integer in 0\.\.4294967295"),
     ("lag_nan", "folder", keep, ("--lag", "nan"), r"--lag must be a finite number"),
     ("beta_above_1", "folder", keep, ("--beta", "5"), r"--beta must be in \[0, 1\]"),
     ("alpha_inf", "folder", keep, ("--alpha", "inf"), r"--alpha must be in \(0, 100\] px \(the method's is 10\)"),
     ("alpha_huge", "folder", keep, ("--alpha", "1e9"), r"--alpha must be in \(0, 100\] px"),
-    ("particles_0", "folder", keep, ("--estimator", "pf", "--particles", "0"), r"--particles must be between 1 and 100000, got 0"),
+    ("particles_0", "folder", keep, ("--estimator", "pf", "--particles", "0"), r"--particles must be a whole number between 1 and 100000, got 0"),
     ("tip_feature_unknown", "folder", keep, ("--tip-feature", "nope"), r"--tip-feature: .*no point feature 'nope'"),
 ]
 

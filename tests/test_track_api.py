@@ -84,8 +84,15 @@ def test_a_frame_built_by_the_caller_is_checked_as_a_recordings_are(stereo):
     for jaw in (None, "0.4"):
         with pytest.raises(FrameError, match="not numbers"):
             pipe.step(dataclasses.replace(f0, jaw=jaw))
-    with pytest.raises(FrameError, match="not a finite number"):
-        pipe.step(dataclasses.replace(f0, stamp="1.0"))
+    for stamp in ("1.0", True):
+        with pytest.raises(FrameError, match="not a finite number"):
+            pipe.step(dataclasses.replace(f0, stamp=stamp))
+    with pytest.raises(FrameError, match=r"shape \(1, 6\): one reading is a flat vector"):
+        pipe.step(dataclasses.replace(f0, joints=f0.joints[None]))
+    with pytest.raises(FrameError, match="the jaw goes in Frame.jaw"):
+        pipe.step(dataclasses.replace(f0, joints=f0.q))
+    with pytest.raises(FrameError, match="no jaw reading"):
+        pipe.step(dataclasses.replace(f0, jaw=float("nan")))
     for reason, frame in bad.items():
         with pytest.raises(FrameError) as e:
             pipe.step(frame)
@@ -98,7 +105,9 @@ def test_a_frame_built_by_the_caller_is_checked_as_a_recordings_are(stereo):
     stereo_pipe = Pipeline(TrackingContext.of(rec), TrackOptions(estimator="pf", detection=CANNY))
     stereo_pipe.step(dataclasses.replace(f0, image_right=f0.image_right[::2, ::2]))
     stereo_pipe.step(dataclasses.replace(frames[1], image_right=frames[1].image_right.astype(np.float32)))
-    assert stereo_pipe.left_only == 2
+    stereo_pipe.step(dataclasses.replace(frames[2], image_right=frames[2].image.copy()))
+    assert stereo_pipe.left_only == 3
+    assert stereo_pipe.right_refused == {"image_size": 1, "image_format": 1, "same_as_left": 1}
 
 
 def test_tip_pixel_names_a_wrong_joint_vector_or_pose(stereo):
@@ -139,7 +148,12 @@ def test_finish_returns_the_batch_refinement_track_writes(stereo, tmp_path):
 @pytest.mark.parametrize("options, match", [
     (TrackOptions(observation="bar"), r"observation 'bar': choose from canny, "),
     (TrackOptions(estimator="ekf"), r"estimator 'ekf': choose from kinematics, pf, smoother, batch"),
-    (TrackOptions(estimation=EstimatorOptions(lag=-1)), r"--lag must be positive"),
+    (TrackOptions(estimation=EstimatorOptions(lag=-1)), r"--lag must be a positive finite number"),
+    (TrackOptions(estimation=EstimatorOptions(lag=float("nan"))), r"--lag must be a positive finite number"),
+    (TrackOptions(estimation=EstimatorOptions(lag=float("inf"))), r"--lag must be a positive finite number"),
+    (TrackOptions(estimation=EstimatorOptions(particles=2.5)), r"--particles must be a whole number"),
+    (TrackOptions(estimation=EstimatorOptions(particles=True)), r"--particles must be a whole number"),
+    (TrackOptions(stereo="no"), r"stereo must be True or False"),
     (TrackOptions(seed=-1), r"--seed must be an integer"),
 ])
 def test_track_checks_its_options_before_writing(stereo, tmp_path, options, match):
@@ -156,6 +170,26 @@ def test_track_raises_where_the_command_line_exits_2(stereo, tmp_path):
     with pytest.raises(InputError, match=r"holds another run's files"):
         track(stereo, tmp_path / "o", options, progress=False, quiet=True)
     track(stereo, tmp_path / "o", options, progress=False, quiet=True, overwrite=True)
+    with pytest.raises(InputError, match=r"empty path, which would mean the current folder"):
+        track(stereo, "", options, progress=False, quiet=True)
+    for n in (0, 2.5, True):
+        with pytest.raises(InputError, match=r"--max-frames must be a whole number of at least 1"):
+            track(stereo, tmp_path / "m", options, progress=False, quiet=True, max_frames=n)
+    with pytest.raises(InputError, match=r"a folder; give the file"):
+        from graphtrack.io.trajectory import read_trajectory
+        read_trajectory(tmp_path / "o")
+
+
+def test_limit_threads_refuses_a_count_below_one_before_changing_anything():
+    import os
+
+    from graphtrack.threads import limit_threads
+
+    before = os.environ.get("OMP_NUM_THREADS")
+    for n in (0, -1, 2.5, True):
+        with pytest.raises(ValueError, match="at least 1"):
+            limit_threads(n)
+    assert os.environ.get("OMP_NUM_THREADS") == before
 
 
 def test_a_one_frame_run_has_no_steady_rate():

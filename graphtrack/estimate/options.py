@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from graphtrack.errors import InputError, check_seed
 
 PARTICLES = 1000      #: particle filter: particles
@@ -47,10 +49,12 @@ class EstimatorOptions:
     def check(self) -> EstimatorOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
         check_seed(self.seed)
-        if not 0 < self.particles <= MAX_PARTICLES:
-            raise InputError(f"--particles must be between 1 and {MAX_PARTICLES}, got {self.particles}")
-        if self.lag <= 0:
-            raise InputError("--lag must be positive")
+        whole = isinstance(self.particles, (int, np.integer)) and not isinstance(self.particles, bool)
+        if not (whole and 0 < self.particles <= MAX_PARTICLES):
+            raise InputError(f"--particles must be a whole number between 1 and {MAX_PARTICLES}, got {self.particles!r}")
+        if isinstance(self.lag, bool) or not isinstance(self.lag, (int, float, np.number)) or \
+                not (np.isfinite(self.lag) and self.lag > 0):
+            raise InputError(f"--lag must be a positive finite number of seconds, got {self.lag!r}")
         if self.smoother not in SMOOTHER_KINDS:
             raise InputError(f"--smoother: choose from {', '.join(SMOOTHER_KINDS)}, not {self.smoother!r}")
         return self

@@ -39,10 +39,18 @@ def frame_problem(frame, n_joints: int | None, size: tuple[int, int], bounds, ha
         return FrameError(frame.index, "image_size", f"{got}, camera_calibration.yaml ImageSize says {w}x{h}{hint}")
     if (why := image_format(image)) is not None:
         return FrameError(frame.index, "image_format", why)
+    if np.ndim(frame.joints) != 1:
+        return FrameError(frame.index, "joint_count", f"joint reading of shape {np.shape(frame.joints)}: "
+                          "one reading is a flat vector of the DH joints")
     if n_joints is not None and joints.size != n_joints:
+        jaw_hint = (": the jaw goes in Frame.jaw, not among the joints" if has_jaw and joints.size == n_joints + 1
+                    else "")
         return FrameError(frame.index, "joint_count",
-                          f"joint reading has {joints.size} values, robot.json has {n_joints} DH joints")
-    if not np.all(np.isfinite(joints)) or (has_jaw and not np.isfinite(jaw)):
+                          f"joint reading has {joints.size} values, robot.json has {n_joints} DH joints{jaw_hint}")
+    if has_jaw and np.all(np.isfinite(joints)) and not np.isfinite(jaw):
+        return FrameError(frame.index, "nan_joints", f"no jaw reading (jaw {jaw}): robot.json's tool has a gripper, so every "
+                          "frame needs one (the jaw topic or joints.csv's jaw column; Frame.jaw in Python, rad)")
+    if not np.all(np.isfinite(joints)):
         return FrameError(frame.index, "nan_joints", f"NaN/inf joint reading {joints.tolist()}, jaw {jaw}")
     if (why := out_of_range(joints, jaw, bounds, has_jaw)) is not None:
         return FrameError(frame.index, "joint_range", f"joint reading {why}")

@@ -266,6 +266,8 @@ def read_trajectory(path: str | Path, poses_required: bool = False) -> dict:
     standard header or a value is not a number.
     """
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: a folder; give the file (e.g. {path / 'trajectory.csv'})")
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     with path.open(newline="") as f:

@@ -142,6 +142,16 @@ def _refine(pipe: Pipeline, run: RunLog, writer: TrajectoryWriter, extra: list[s
     writer.rewrite_all(rows)
 
 
+def check_run_arguments(out, max_frames) -> None:
+    """InputError for what the command line's parser refuses: an empty output path (it would
+    mean the current folder), a ``max_frames`` that is not a whole number of at least 1."""
+    if not str(out).strip():
+        raise InputError("the output folder is an empty path, which would mean the current folder: name the output")
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer))
+                                   or max_frames < 1):
+        raise InputError(f"--max-frames must be a whole number of at least 1, got {max_frames!r}")
+
+
 def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
           progress: bool = True, max_frames: int | None = None, quiet: bool = False,
           topics: TopicSelection = TopicSelection(), overwrite: bool = False) -> dict:
@@ -157,8 +167,7 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     (:mod:`graphtrack.io.run_output`). Freed frame buffers are kept (:mod:`graphtrack.allocator`).
     """
     options.check()
-    if max_frames is not None and max_frames < 1:
-        raise InputError("--max-frames must be at least 1")
+    check_run_arguments(out, max_frames)
     outside_recording(out, path)
     prepare_run_dir(out, overwrite)
     keep_freed_memory()

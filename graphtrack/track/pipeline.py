@@ -64,6 +64,8 @@ class TrackOptions:
         if self.observation not in OBSERVATION_MODELS:
             raise InputError(f"observation {self.observation!r}: choose from {', '.join(OBSERVATION_MODELS)}")
         check_seed(self.seed)
+        if not isinstance(self.stereo, (bool, np.bool_)):
+            raise InputError(f"stereo must be True or False (False: --mono), got {self.stereo!r}")
         self.detection.check()
         self.estimation.check()
         return self
@@ -114,6 +116,8 @@ class Pipeline:
             ctx.right if self.scale == 1.0 else ctx.right.scaled(self.scale))
         self.right = (None, None)     # the last frame's right (Detection, Observation)
         self.left_only = 0            # stereo frames updated without their right image
+        #: of those, the frames whose right image was refused, by reason (io.frame_checks.right_problem)
+        self.right_refused = {"image_size": 0, "image_format": 0, "same_as_left": 0}
         cls = estimator_class(options.estimator)
         self.needs_images = cls.uses_observations
         kw = options.estimation.keywords(options.estimator)
@@ -261,7 +265,8 @@ class Pipeline:
         problem = frame_problem(frame, robot.n_dh, (cam.height, cam.width), self._joint_bounds, robot.has_gripper)
         if problem is not None:
             return problem
-        if not (isinstance(frame.stamp, (int, float, np.number)) and np.isfinite(frame.stamp)):
+        if isinstance(frame.stamp, bool) or not (isinstance(frame.stamp, (int, float, np.number))
+                                                 and np.isfinite(frame.stamp)):
             return FrameError(frame.index, "stamp_order", f"stamp {frame.stamp!r} is not a finite number (seconds)")
         if self.last_stamp is not None and not frame.stamp > self.last_stamp:
             return FrameError(frame.index, "stamp_order",
@@ -272,13 +277,15 @@ class Pipeline:
         """Track one frame: (Estimate, Detection | None, Observation | None, per-stage ms).
 
         Raises the FrameError of :meth:`check` for a frame that cannot be tracked (nothing
-        changes then); a right image of another size or a copy of the left one is not used
-        (a left-only update). An offline estimator (``batch``) answers each frame with its
+        changes then); a right image of another size, not 8-bit BGR or a copy of the left one
+        is not used (a left-only update, counted in ``right_refused`` by reason). An offline estimator (``batch``) answers each frame with its
         online estimate; :meth:`finish` returns the refined ones."""
         problem = self.check(frame)
         if problem is not None:
             raise problem
-        if self.stereo and right_problem(frame, (self.ctx.camera.height, self.ctx.camera.width)) is not None:
+        why = right_problem(frame, (self.ctx.camera.height, self.ctx.camera.width)) if self.stereo else None
+        if why is not None:
+            self.right_refused[why] += 1
             frame = dataclasses.replace(frame, image_right=None)
         ms = {}
         detection = observation = None
