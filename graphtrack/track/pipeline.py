@@ -278,8 +278,9 @@ class Pipeline:
 
         Raises the FrameError of :meth:`check` for a frame that cannot be tracked (nothing
         changes then); a right image of another size, not 8-bit BGR or a copy of the left one
-        is not used (a left-only update, counted in ``right_refused`` by reason). An offline estimator (``batch``) answers each frame with its
-        online estimate; :meth:`finish` returns the refined ones."""
+        is not used (a left-only update, counted in ``right_refused`` by reason). An offline
+        estimator (``batch``) answers each frame with its online estimate; :meth:`finish`
+        returns the refined ones."""
         problem = self.check(frame)
         if problem is not None:
             raise problem
