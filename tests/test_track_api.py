@@ -175,6 +175,11 @@ def test_track_raises_where_the_command_line_exits_2(stereo, tmp_path):
     for n in (0, 2.5, True):
         with pytest.raises(InputError, match=r"--max-frames must be a whole number of at least 1"):
             track(stereo, tmp_path / "m", options, progress=False, quiet=True, max_frames=n)
+    from graphtrack.commands.detect import detect_recording
+    with pytest.raises(InputError, match=r"empty path, which would mean the current folder"):
+        detect_recording(stereo, "", quiet=True)
+    with pytest.raises(InputError, match=r"--max-frames must be a whole number of at least 1"):
+        detect_recording(stereo, tmp_path / "d", max_frames=0, quiet=True)
     with pytest.raises(InputError, match=r"a folder; give the file"):
         from graphtrack.io.trajectory import read_trajectory
         read_trajectory(tmp_path / "o")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 
 from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
-from graphtrack.io.run_output import outside_recording
+from graphtrack.io.run_output import check_run_arguments, outside_recording
 from graphtrack.commands.track import (FORMATTER, add_detection_arguments, add_estimator_arguments,
                                        estimator_options_from_args)
 from graphtrack.detect.base import OBSERVATION_MODELS
@@ -28,8 +28,7 @@ def _list(value: str, allowed, what: str) -> list[str]:
 
 def study_options_from_args(args) -> StudyOptions:
     """The StudyOptions of a ``compare`` command line (InputError for bad values)."""
-    if args.max_frames is not None and args.max_frames <= 0:
-        raise InputError("--max-frames must be positive")
+    check_run_arguments(args.out, args.max_frames)
     if args.repeats < 1:
         raise InputError("--repeats must be at least 1")
     if args.mono and args.stereo not in (None, "mono"):

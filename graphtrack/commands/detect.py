@@ -36,7 +36,7 @@ from graphtrack.detect.pixel_sets import endpoints_set, line_set
 from graphtrack.errors import FrameError, InputError
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.outdir import writable_dir
-from graphtrack.io.run_output import DETECT_FILES, outside_recording, prepare_run_dir
+from graphtrack.io.run_output import DETECT_FILES, check_run_arguments, outside_recording, prepare_run_dir
 from graphtrack.io.recording import open_recording
 from graphtrack.io.topics import TopicSelection
 from graphtrack.io.video import StampedVideoWriter
@@ -94,6 +94,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
     ``stereo`` is False, ``--mono``) also gets detections_right.csv, the same columns
     for the right images (undistorted right pixels, gated through right_T_left . E_0).
     ``out`` holding another run's files (DETECT_FILES) is refused unless ``overwrite``."""
+    check_run_arguments(out, max_frames)
     rec = open_recording(path, topics=topics)
     ctx = TrackingContext(rec.robot, rec.calibration.left, rec.handeye)
     out = writable_dir(prepare_run_dir(out, overwrite, DETECT_FILES))
@@ -158,8 +159,7 @@ def detect_recording(path, out, options: DetectionOptions = DetectionOptions(), 
 
 
 def run(args) -> int:
-    if args.max_frames is not None and args.max_frames <= 0:
-        raise InputError("--max-frames must be positive")
+    check_run_arguments(args.out, args.max_frames)
     outside_recording(args.out, args.sequence)
     options = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta)
     res = detect_recording(args.sequence, args.out, options.check(), args.video, args.max_frames, args.quiet,

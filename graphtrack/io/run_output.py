@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
+import numbers
 import os
 import signal
 import threading
@@ -62,6 +63,17 @@ def deferred_interrupts():
                 handler(held[0], None)
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(held[0])
+
+
+def check_run_arguments(out, max_frames) -> None:
+    """InputError for what the command line's parser refuses, for a caller in Python too: an
+    empty output path (it would mean the current folder), a ``max_frames`` that is not a whole
+    number of at least 1 (None: all frames)."""
+    if not str(out).strip():
+        raise InputError("the output folder is an empty path, which would mean the current folder: name the output")
+    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, numbers.Integral)
+                                   or max_frames < 1):
+        raise InputError(f"--max-frames must be a whole number of at least 1, got {max_frames!r}")
 
 
 def _present(out: Path, names) -> list[str]:

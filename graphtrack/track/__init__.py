@@ -30,7 +30,7 @@ from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_met
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
-from graphtrack.io.run_output import (deferred_interrupts, lock_problem, lock_refused, outside_recording, prepare_run_dir,
+from graphtrack.io.run_output import (check_run_arguments, deferred_interrupts, lock_problem, lock_refused, outside_recording, prepare_run_dir,
                                       require_lock, require_tool_in_front, require_tracked, write_json)
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
@@ -140,16 +140,6 @@ def _refine(pipe: Pipeline, run: RunLog, writer: TrajectoryWriter, extra: list[s
         run.rows[i] = (fi, stamp, q, ms, E)
         rows.append((fi, stamp, E, tip, ms, _extras(est, extra)))
     writer.rewrite_all(rows)
-
-
-def check_run_arguments(out, max_frames) -> None:
-    """InputError for what the command line's parser refuses: an empty output path (it would
-    mean the current folder), a ``max_frames`` that is not a whole number of at least 1."""
-    if not str(out).strip():
-        raise InputError("the output folder is an empty path, which would mean the current folder: name the output")
-    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer))
-                                   or max_frames < 1):
-        raise InputError(f"--max-frames must be a whole number of at least 1, got {max_frames!r}")
 
 
 def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool = False,
