@@ -74,7 +74,6 @@ def _pf(out: dict) -> None:
         out["pf_step_ms_1000_" + ("stereo" if stereo else "mono")] = 1e3 * statistics.median(ts)
 
 
-
 def _fps(out: dict, work: Path) -> None:
     for stereo, name in ((True, "stereo"), (False, "mono")):
         fps = [_track(recording(scene, seed), work / f"{seed}-{name}", "smoother", stereo)["fps_steady"]
