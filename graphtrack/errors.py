@@ -1,6 +1,7 @@
 """Errors that reach the user as one line and exit status 2, and the checks that raise them."""
 
 import math
+import numbers
 from pathlib import Path
 
 
@@ -114,6 +115,11 @@ def is_number(v) -> bool:
     if isinstance(v, int):
         return abs(v) <= 1e300
     return math.isfinite(v)
+
+
+def is_whole(v) -> bool:
+    """An integer (Python's or numpy's), never a bool: what a count or an index may be."""
+    return not isinstance(v, bool) and isinstance(v, numbers.Integral)
 
 
 def number_list(doc: dict, key: str, path, sizes: tuple[int, ...] = (), noun: str = "key",

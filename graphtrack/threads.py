@@ -10,8 +10,9 @@ counts: :func:`limit_threads` (n) runs it as the command line does.
 """
 from __future__ import annotations
 
-import numbers
 import os
+
+from graphtrack.errors import is_whole
 
 #: environment variables read by BLAS / OpenMP runtimes when they load (and by child processes)
 THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
@@ -36,7 +37,7 @@ def limit_threads(n: int = DEFAULT_THREADS) -> None:
     import torch
     from threadpoolctl import threadpool_limits
 
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 1:
+    if not is_whole(n) or n < 1:
         raise ValueError(f"limit_threads: n must be a whole number of at least 1, got {n!r}")
     n = int(n)
     set_thread_environment(n)

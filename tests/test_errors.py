@@ -1,8 +1,9 @@
-"""errors.number_list: the one reader of a list-of-numbers key in the configuration files."""
+"""errors.number_list: the one reader of a list-of-numbers key in the configuration files;
+errors.is_whole: what a count may be."""
 import numpy as np
 import pytest
 
-from graphtrack.errors import InputError, number_list
+from graphtrack.errors import InputError, is_whole, number_list
 
 
 def test_plain_list_and_data_mapping_read_alike():
@@ -47,3 +48,10 @@ def test_a_key_given_twice_is_refused_not_resolved_silently(tmp_path):
     j.write_text('{"a": 1,}')
     with pytest.raises(InputError, match=r"robot.json: not valid JSON \(line 1"):
         read_json(j)
+
+
+@pytest.mark.parametrize("v, whole", [(3, True), (np.int64(3), True), (np.uint8(0), True), (-1, True),
+                                      (3.0, False), (2.5, False), (True, False), (np.bool_(True), False),
+                                      ("3", False), (None, False)])
+def test_is_whole_takes_integers_of_python_and_numpy_never_bools(v, whole):
+    assert is_whole(v) is whole

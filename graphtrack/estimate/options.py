@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from graphtrack.errors import InputError, check_seed
+from graphtrack.errors import InputError, check_seed, is_whole
 
 PARTICLES = 1000      #: particle filter: particles
 MAX_PARTICLES = 100_000  #: particle filter: the most particles accepted (about 0.2 s a frame, a few hundred MB)
@@ -49,8 +49,7 @@ class EstimatorOptions:
     def check(self) -> EstimatorOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
         check_seed(self.seed)
-        whole = isinstance(self.particles, (int, np.integer)) and not isinstance(self.particles, bool)
-        if not (whole and 0 < self.particles <= MAX_PARTICLES):
+        if not (is_whole(self.particles) and 0 < self.particles <= MAX_PARTICLES):
             raise InputError(f"--particles must be a whole number between 1 and {MAX_PARTICLES}, got {self.particles!r}")
         if isinstance(self.lag, bool) or not isinstance(self.lag, (int, float, np.number)) or \
                 not (np.isfinite(self.lag) and self.lag > 0):

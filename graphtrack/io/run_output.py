@@ -21,13 +21,12 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import numbers
 import os
 import signal
 import threading
 from pathlib import Path
 
-from graphtrack.errors import InputError
+from graphtrack.errors import InputError, is_whole
 
 #: the files a tracking run writes into its output folder
 RUN_FILES = ("trajectory.csv", "trajectory.tum", "metrics.json", "overlay.mp4", "overlay.refined.mp4",
@@ -71,8 +70,7 @@ def check_run_arguments(out, max_frames) -> None:
     number of at least 1 (None: all frames)."""
     if not str(out).strip():
         raise InputError("the output folder is an empty path, which would mean the current folder: name the output")
-    if max_frames is not None and (isinstance(max_frames, bool) or not isinstance(max_frames, numbers.Integral)
-                                   or max_frames < 1):
+    if max_frames is not None and not (is_whole(max_frames) and max_frames >= 1):
         raise InputError(f"--max-frames must be a whole number of at least 1, got {max_frames!r}")
 
 

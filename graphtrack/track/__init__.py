@@ -30,8 +30,9 @@ from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_met
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
-from graphtrack.io.run_output import (check_run_arguments, deferred_interrupts, lock_problem, lock_refused, outside_recording, prepare_run_dir,
-                                      require_lock, require_tool_in_front, require_tracked, write_json)
+from graphtrack.io.run_output import (check_run_arguments, deferred_interrupts, lock_problem, lock_refused,
+                                      outside_recording, prepare_run_dir, require_lock, require_tool_in_front,
+                                      require_tracked, write_json)
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
 from graphtrack.io.topics import TopicSelection
