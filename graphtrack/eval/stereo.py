@@ -12,10 +12,10 @@ The 3-D tip error of a frame is |X_est - X| in mm, X_est = E_t . tip(q~_t) the
 estimated tip in the left camera frame. A disparity error of d px between the two labels
 moves X along its viewing ray by z^2 d / (f_x |T|) (:func:`disparity_depth_mm_per_px`; 7 mm
 per px at 15 cm with f_x = 620 px and a 5 mm baseline), so with labels placed to a pixel
-this figure is mostly the labels' own depth error; truth.csv's exact tip has none. It depends on the labels and the rig's
-calibration only, so it scores a mono run (``--mono``) on the same footing as a
-stereo one. The 2-D right error is |pi_R(X_est) - u_R| px in the RAW right image
-(pi_R: right_T_left, K2, D2), as the left one is in the raw left image.
+this figure is mostly the labels' own depth error; truth.csv's exact tip has none. It
+depends on the labels and the rig's calibration only, so it scores a mono run (``--mono``)
+on the same footing as a stereo one. The 2-D right error is |pi_R(X_est) - u_R| px in the
+RAW right image (pi_R: right_T_left, K2, D2), as the left one is in the raw left image.
 """
 from __future__ import annotations
 
