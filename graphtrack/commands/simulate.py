@@ -36,6 +36,10 @@ def add_parser(sub) -> None:
     p.add_argument("--stereo", action="store_true",
                    help="also render the right camera (5 mm baseline, 2 deg vergence): right images, "
                         "K2/D2/R/T, labels_right.csv; the left recording is unchanged")
+    p.add_argument("--shaft-angle", type=float, default=None, metavar="DEG",
+                   help="the direction the shaft enters the image from, deg counter-clockwise from the "
+                        "image's right (0: from the right, 90: from the top, 180: from the left) (default: "
+                        "drawn from the seed, 20-65 or 115-160)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a recording in OUT that was not simulated (refused otherwise)")
@@ -49,6 +53,6 @@ def run(args) -> int:
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
                    progress=args.progress, stereo=args.stereo, image_format=args.image_format,
-                   overwrite=args.overwrite)
+                   overwrite=args.overwrite, shaft_angle=args.shaft_angle)
     print(f"wrote {out}")
     return 0

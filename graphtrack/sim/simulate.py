@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from graphtrack.errors import InputError, check_seed
+from graphtrack.errors import InputError, check_seed, is_number
 from graphtrack.geometry.camera import Calibration, save_calibration
 from graphtrack.geometry.se3 import matrix_to_bw, matrix_to_quaternion, transform_points
 from graphtrack.io.bag_write import write_bag
@@ -100,11 +100,14 @@ class Simulation:
     randomize: the scene's look is randomized (sim/scene.py) and so are the
     hand-eye error (|b| 0-10 mm, |w| 0-5 deg), an out-of-view excursion,
     occlusions and image effects (``self.scenario``: what was drawn).
+    shaft_angle (deg): the image direction the shaft enters from, counter-clockwise from
+    the image's right (0: from the right edge, 90: from the top, 180: from the left); None:
+    drawn, 20-65 or 115-160 deg (from an upper edge). The seed's other draws are the same.
     """
 
     def __init__(self, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
                  randomize: bool = False, noise_free: bool = False, antialias: bool = True,
-                 stereo: bool = False):
+                 stereo: bool = False, shaft_angle: float | None = None):
         H, W = check_args(scene, frames, size)
         self.robot = psm_large_needle_driver()
         ss = np.random.SeedSequence([int(seed), SCENES.index(scene), int(randomize), int(noise_free)])
@@ -115,9 +118,12 @@ class Simulation:
         self.scene = make_scene(scene, (H, W), r_scene, randomize, noise_free)
         self.scene.setup_renderer(self.robot, antialias)
         cam = self.scene.camera
-        self.E_he = motion.look_at_workspace(
-            self.robot, motion.Q0, self.scene.distance, r_pose.uniform(58, 72), r_pose.uniform(-np.pi, np.pi),
-            r_pose.choice([-1, 1]) * r_pose.uniform(25, 70) - 90, r_pose.uniform(0.08, 0.16) * W, cam.fx)
+        view, azimuth = r_pose.uniform(58, 72), r_pose.uniform(-np.pi, np.pi)
+        entry = r_pose.choice([-1, 1]) * r_pose.uniform(25, 70) - 90   # y-down image angle towards the entry
+        if shaft_angle is not None:
+            entry = -float(shaft_angle)
+        self.E_he = motion.look_at_workspace(self.robot, motion.Q0, self.scene.distance, view, azimuth, entry,
+                                             r_pose.uniform(0.08, 0.16) * W, cam.fx)
         if noise_free:
             self.delta = np.eye(4)
         else:
@@ -271,7 +277,7 @@ def _prepare_out(out: Path, overwrite: bool = False) -> None:
 def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
              compressed: bool = False, form: str = "bag", randomize: bool = False, progress: bool = True,
              noise_free: bool = False, stereo: bool = False, image_format: str = "png",
-             overwrite: bool = False) -> Path:
+             overwrite: bool = False, shaft_angle: float | None = None) -> Path:
     """Write a simulated recording into ``out_dir`` (sequence format + truth.csv) and return it.
 
     scene: "structured" | "tissue"; frames > 0; size = (H, W) px; form: "bag"
@@ -283,14 +289,17 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
     R, T in camera_calibration.yaml and labels_right.csv. ``randomize``: also
     scenario.json (what was drawn; sim/scenario.py). ``out_dir`` holding a recording
     that was not simulated is refused unless ``overwrite`` (one simulated before is
-    replaced). Frames are rendered and written one at a time.
+    replaced). Frames are rendered and written one at a time. ``shaft_angle`` (deg): the
+    direction the shaft enters the image from (:class:`Simulation`); None: drawn.
     """
     if image_format not in ("png", "jpeg"):
         raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
     check_seed(seed)
-    sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo)
+    if shaft_angle is not None and not is_number(shaft_angle):
+        raise InputError(f"shaft angle must be a finite number of degrees, got {shaft_angle!r}")
+    sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo, shaft_angle=shaft_angle)
     out = Path(out_dir)
     _prepare_out(out, overwrite)
     save_robot_json(out / "robot.json", sim.robot)
