@@ -78,6 +78,9 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     p.add_argument("--no-shaft-end", action="store_true",
                    help="do not observe where the shaft ends (robot.json's shaft_features[0].end)")
+    p.add_argument("--no-turn", action="store_true",
+                   help="--detector learned: never turn the net's input (it is turned by 45 deg where the "
+                        "predicted shaft lies near an image axis, which the shipped net does not see)")
     add_mono_argument(p)
     add_estimator_arguments(p, particles=smoother_options, smoother=smoother_options)
     p.add_argument("--no-edge-bias", action="store_true",
@@ -111,7 +114,8 @@ def options_from_args(args) -> TrackOptions:
     """The TrackOptions of a ``track`` / ``refine`` command line (InputError for bad values)."""
     detection = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta,
                                  markers=not args.no_markers, scale=args.detect_scale,
-                                 shaft_end=not args.no_shaft_end).check()
+                                 shaft_end=not args.no_shaft_end,
+                                 turn=not getattr(args, "no_turn", False)).check()
     return TrackOptions(estimator=args.estimator, observation=args.observation, detection=detection,
                         estimation=estimator_options_from_args(args), seed=args.seed,
                         tip_feature=args.tip_feature, stereo=not args.mono)

@@ -27,6 +27,10 @@ SOLD2's two outputs, segments and a line heatmap H, at camera rate:
    and the others' are known as bands (``Observation.bands``). H is left as
    the net made it.
 
+When the predicted shaft lies near an image axis, where the shipped net does not see
+it, the net's input is turned by 45 deg and its maps turned back
+(:mod:`graphtrack.detect.turn`; ``turn=False`` keeps the input as it is).
+
 Weights: ``graphtrack/data/learned_detector.pt`` (shipped), or ``weights=FILE``
 (from ``graphtrack train``), loaded with ``torch.load(weights_only=True)``; a
 missing file, a file that is not a state dict, or one of another architecture
@@ -55,6 +59,7 @@ from graphtrack.detect.learned_net import ARCH, LineNet
 from graphtrack.detect.markers import MarkerConfig, detect_markers
 from graphtrack.detect.segments import ExtractConfig, extract_segments
 from graphtrack.detect.subpixel import SubpixelConfig, refine_segments
+from graphtrack.detect.turn import turn_for, turned, turned_back
 from graphtrack.errors import InputError, one_line
 from graphtrack.geometry.image_scale import scale_points
 from graphtrack.geometry.lines import line_through
@@ -144,7 +149,7 @@ class LearnedDetector:
     def __init__(self, weights: str | Path | None = None, scale: float = 0.25, markers: bool = True,
                  extract: ExtractConfig | None = None, association: AssociationConfig | None = None,
                  marker_config: MarkerConfig | None = None, min_contrast: float = 2.0,
-                 threads: int | None = None, subpixel: bool | SubpixelConfig = True):
+                 threads: int | None = None, subpixel: bool | SubpixelConfig = True, turn: bool = True):
         self.net = load_weights(weights)
         path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
         st = path.stat()
@@ -157,14 +162,17 @@ class LearnedDetector:
         self.marker_config = marker_config
         self.min_contrast = float(min_contrast)
         self.subpixel = subpixel if isinstance(subpixel, SubpixelConfig) else (SubpixelConfig() if subpixel else None)
+        self.turn = bool(turn)
         if threads is not None:
             torch.set_num_threads(int(threads))
 
-    def heatmaps(self, image: np.ndarray, camera=None) -> tuple[np.ndarray, np.ndarray] | None:
+    def heatmaps(self, image: np.ndarray, camera=None, turn: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
         """(L, J) at the reduced scale for an undistorted BGR frame, or None
         when the frame is too small or uniform. camera: ``image`` is that camera's
         RAW frame; it is resized, then undistorted at the reduced size
-        (:meth:`graphtrack.geometry.camera.Camera.undistort_resized`)."""
+        (:meth:`graphtrack.geometry.camera.Camera.undistort_resized`). turn (deg):
+        the net reads the reduced frame turned by that much, its maps are turned back
+        (:mod:`graphtrack.detect.turn`)."""
         img = np.asarray(image)
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
@@ -181,6 +189,14 @@ class LearnedDetector:
             small = camera.undistort_resized(small)
         if float(cv2.meanStdDev(small.reshape(-1, 1))[1][0, 0]) < self.min_contrast:   # = small.std(), 20x faster
             return None
+        if turn:
+            canvas, A = turned(small, turn)
+            L, J = self._net(canvas)
+            return turned_back(L, A, small.shape[:2]), turned_back(J, A, small.shape[:2])
+        return self._net(small)
+
+    def _net(self, small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The net's (L, J) sigmoid maps for a BGR uint8 image at the reduced scale."""
         x = torch.from_numpy(cv2.cvtColor(small, cv2.COLOR_BGR2RGB)).permute(2, 0, 1)[None].float() / 255.0
         x = x.contiguous(memory_format=torch.channels_last)   # HWC pixels are already NHWC
         if self._infer is None:
@@ -212,7 +228,7 @@ class LearnedDetector:
         if camera is not None and not np.any(np.ravel(camera.dist)):
             camera = None                 # no distortion: raw pixels are undistorted ones
         markers = self._markers(img, camera)
-        maps = self.heatmaps(img, camera)
+        maps = self.heatmaps(img, camera, turn_for(predicted_lines) if self.turn else 0.0)
         if maps is None:
             return Detection(heatmap=np.zeros(img.shape[:2], np.float32), markers=markers,
                              ms=(time.perf_counter() - t0) * 1e3)

@@ -24,7 +24,9 @@ class DetectionOptions:
     pixel sets' radius and heatmap threshold; markers: use painted-marker
     detections; scale: detect on the undistorted image scaled by this factor
     (None: at most MAX_DETECT_WIDTH px wide); shaft_end: find the shaft's distal end
-    where robot.json gives it (:mod:`graphtrack.detect.shaft_end`)."""
+    where robot.json gives it (:mod:`graphtrack.detect.shaft_end`); turn: the learned
+    detector turns its net's input by 45 deg where the predicted shaft lies near an image
+    axis (:mod:`graphtrack.detect.turn`)."""
 
     detector: str = DETECTOR
     weights: str | None = None
@@ -33,6 +35,7 @@ class DetectionOptions:
     markers: bool = True
     scale: float | None = None
     shaft_end: bool = True
+    turn: bool = True
 
     def check(self) -> DetectionOptions:
         """Raise InputError naming the CLI option of a value out of range; return self."""
@@ -52,7 +55,10 @@ class DetectionOptions:
 
     def detector_keywords(self) -> dict:
         """The keywords :func:`graphtrack.detect.make_detector` builds the detector with."""
-        return {"weights": self.weights} if self.weights else {}
+        kw = {"weights": self.weights} if self.weights else {}
+        if not self.turn and self.detector == "learned":
+            kw["turn"] = False
+        return kw
 
 
 def check_observation(model: str) -> str:
