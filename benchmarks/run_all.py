@@ -29,7 +29,8 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-SECTIONS = ("sim", "detect", "pf", "smoother", "track", "accuracy", "robustness", "stereo", "stereo_speed")
+SECTIONS = ("sim", "detect", "pf", "smoother", "track", "accuracy", "robustness", "stereo", "stereo_speed",
+            "orientation")
 RENDERED = SECTIONS + ("scaling",)
 
 #: (section, key, what, target, ">=" | "<=", unit). Keys missing from the results show as "not measured".
