@@ -80,3 +80,41 @@ def test_train_init_fine_tunes_from_weights(tmp_path):
     assert new["meta"]["init"] == str(DEFAULT_WEIGHTS)
     assert f"--init {DEFAULT_WEIGHTS}" in new["meta"]["command"] and "--lr 1e-12" in new["meta"]["command"]
     assert main(["train", "--out", str(out), "--frames", "2", "--init", str(tmp_path / "none.pt")]) == 2
+
+
+@pytest.mark.parametrize("deg", [30.0, -75.0, 150.0])
+def test_turned_samples_keep_their_labels_on_their_lines(deg):
+    # oracle: a line drawn by OpenCV into the image; after the turn its bright pixels lie
+    # on the turned label (within a pixel), and the label stays inside the image
+    import cv2
+
+    from graphtrack.training.fit import turn_samples
+
+    h, w = 60, 100
+    img = np.zeros((h, w), np.float32)
+    cv2.line(img, (30, 30), (70, 30), 1.0, 1)
+    x = torch.from_numpy(img)[None, None].repeat(1, 3, 1, 1)
+    segs = np.array([[[30.0, 30.0, 70.0, 30.0], [np.nan] * 4]])
+    xt, st = turn_samples(x, segs, np.radians([deg]), h, w)
+    assert np.all(np.isnan(st[0, 1]))
+    a, b = st[0, 0, :2], st[0, 0, 2:]
+    assert np.hypot(*(b - a)) == pytest.approx(40.0, abs=1e-6)   # inside: not clipped, length kept
+    n = np.array([a[1] - b[1], b[0] - a[0]]) / 40.0
+    ys, xs = np.nonzero(xt[0, 0].numpy() > 0.5)
+    assert len(xs) > 20 and np.abs((np.stack([xs, ys], 1) - a) @ n).max() < 1.0
+    # the turn's direction: content turns clockwise on screen for a positive angle (y down)
+    d = (b - a) / 40.0
+    assert d == pytest.approx([np.cos(np.radians(deg)), np.sin(np.radians(deg))], abs=1e-9)
+
+
+def test_a_turned_label_is_clipped_to_the_image():
+    from graphtrack.training.fit import turn_samples
+
+    h, w = 60, 100
+    x = torch.zeros(1, 3, h, w)
+    segs = np.array([[[0.0, 29.5, 99.0, 29.5]]])        # the full width, turned upright: cut at the image
+    _, st = turn_samples(x, segs, np.radians([90.0]), h, w)
+    s = st[0, 0]
+    assert np.all(s[0::2] >= -1e-9) and np.all(s[0::2] <= w - 1 + 1e-9)
+    assert np.all(s[1::2] >= -1e-9) and np.all(s[1::2] <= h - 1 + 1e-9)
+    assert abs(s[3] - s[1]) == pytest.approx(h - 1, abs=1e-6) and abs(s[2] - s[0]) < 1e-6

@@ -6,7 +6,10 @@ of the pixels), junction loss x 0.5. Targets from
 :func:`graphtrack.training.labels.target_maps`.
 
 Augmentation (per sample, on the fly, seeded): horizontal and vertical flips
-(image and segments), brightness gain 0.2-1.5 (half the samples below 0.6:
+(image and segments); half the samples turned about the image centre by U(-180, 180) deg,
+the border replicated and the segments turned and clipped to the image (the simulator
+draws the shaft 20-65 deg from the horizontal, a real view has it at any angle:
+docs/decisions/net-orientation.md); brightness gain 0.2-1.5 (half the samples below 0.6:
 low light), gamma 0.7-1.8, per-channel gain 0.8-1.2, contrast 0.6-1.2 about
 the mean, Gaussian noise sigma 0-0.05, 3x3 box blur 1 in 4.
 
@@ -26,7 +29,38 @@ import torch
 
 from graphtrack.detect.learned import load_weights
 from graphtrack.detect.learned_net import ARCH, LineNet
-from graphtrack.training.labels import target_maps
+from graphtrack.training.labels import clip_segment, target_maps
+
+TURN_P = 0.5   #: the fraction of training samples turned by a uniform angle
+
+
+def turn_samples(x, segs, angles, h: int, w: int):
+    """Each sample b of x (B, C, h, w) turned about the image centre c = ((w-1)/2, (h-1)/2)
+    by angles[b] (rad; positive turns content clockwise on screen, y down), bilinear, the
+    border replicated; its segments (B, S, 4) likewise, p' = c + R(a) (p - c), clipped to
+    the image [0, w-1] x [0, h-1] (NaN rows where nothing is left). Returns both."""
+    B = x.shape[0]
+    c, s_ = np.cos(angles), np.sin(angles)
+    S = np.diag([(w - 1) / 2.0, (h - 1) / 2.0])
+    theta = np.zeros((B, 2, 3))
+    for b in range(B):   # the sampling grid maps output to input: p_in = c + R(-a) (p_out - c)
+        Rt = np.array([[c[b], s_[b]], [-s_[b], c[b]]])
+        theta[b, :, :2] = np.linalg.inv(S) @ Rt @ S
+    grid = torch.nn.functional.affine_grid(torch.as_tensor(theta, dtype=x.dtype, device=x.device),
+                                           list(x.shape), align_corners=True)
+    x = torch.nn.functional.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=True)
+    segs = np.array(segs, float)
+    ctr = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    lo, hi = np.zeros(2), np.array([w - 1.0, h - 1.0])
+    for b in range(B):
+        R = np.array([[c[b], -s_[b]], [s_[b], c[b]]])
+        for k in range(segs.shape[1]):
+            if not np.all(np.isfinite(segs[b, k])):
+                continue
+            a, e = (R @ (segs[b, k, :2] - ctr) + ctr), (R @ (segs[b, k, 2:] - ctr) + ctr)
+            cut = clip_segment(a, e, lo, hi)
+            segs[b, k] = np.nan if cut is None else np.concatenate(cut)
+    return x, segs
 
 
 def _augment(x, segs, rng, h: int, w: int):
@@ -40,6 +74,9 @@ def _augment(x, segs, rng, h: int, w: int):
         if rng.uniform() < 0.5:
             x[b] = x[b].flip(-2)
             segs[b, :, 1::2] = (h - 1) - segs[b, :, 1::2]
+    angles = np.where(rng.uniform(size=B) < TURN_P, rng.uniform(-np.pi, np.pi, B), 0.0)
+    if np.any(angles):
+        x, segs = turn_samples(x, segs, angles, h, w)
     gain = np.where(rng.uniform(size=B) < 0.5, rng.uniform(0.2, 0.6, B), rng.uniform(0.6, 1.5, B))
     gamma = rng.uniform(0.7, 1.8, B)
     chan = rng.uniform(0.8, 1.2, (B, 3))
