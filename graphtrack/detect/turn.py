@@ -3,8 +3,8 @@
 The shipped learned detector was trained on the simulator's views, whose shaft enters
 from an upper edge 20-65 deg from the horizontal, flipped both ways. It misses shaft
 edges that lie near an image axis: swept on held-out frames turned about their centre,
-the net's line heatmap on the true edges falls below 0.1 within ~8 deg of the
-horizontal and beyond ~70 deg (docs/decisions/net-orientation.md). A real view has the
+the net's line heatmap on the true edges falls to ~0.1 or below within 10 deg of the
+horizontal and beyond 75 deg (docs/decisions/net-orientation.md). A real view has the
 tool at any angle, so when the predicted shaft lies in that blind zone the net's input
 is turned by 45 deg, and its maps are turned back:
 
@@ -14,8 +14,11 @@ is turned by 45 deg, and its maps are turned back:
     blind:      |a| < BLIND_DEG[0]  or  |a| > BLIND_DEG[1]
     turn:       phi = +45 deg if a > 0 else -45 deg          (OpenCV's sign:
                                                              counter-clockwise on screen),
-                which takes the edge to a - phi: (0, 15) -> (-45, -30), (65, 90] ->
-                (20, 45], (-15, 0] -> (30, 45], [-90, -65) -> [-45, -20).
+                which takes the edge to a - phi: (0, 15) -> (-45, -30), (70, 90] ->
+                (25, 45], (-15, 0] -> (30, 45], [-90, -70) -> [-45, -25).
+
+The zone's bounds are where the net's median heatmap on the true edges of the sweep's
+frames falls below 0.95 (the 10-15 and 70-75 deg bins: 0.92, 0.70).
 
 The turned image lies on a canvas that holds all of it, (w + h) / sqrt(2) square for
 45 deg (a 135x240 input: 266x266, 2.2 times the net's work), its margin filled by
@@ -30,7 +33,7 @@ import cv2
 import numpy as np
 
 #: (deg) edges nearer the horizontal than BLIND_DEG[0] or farther than BLIND_DEG[1] are turned
-BLIND_DEG = (15.0, 65.0)
+BLIND_DEG = (15.0, 70.0)
 #: (deg) the turn
 TURN_DEG = 45.0
 
