@@ -104,7 +104,7 @@ def _recording(i: int) -> dict:
     path = _simulate(scene, seed, angle)
     runs = DATA / "runs" / path.name
 
-    def run(name: str, estimator: str, turn: bool = True) -> np.ndarray:
+    def cell(name: str, estimator: str, turn: bool = True) -> np.ndarray:
         out = runs / name
         if not (out / "truth_errors.csv").is_file():
             opts = TrackOptions(estimator=estimator, observation=OBSERVATION,
@@ -112,12 +112,12 @@ def _recording(i: int) -> dict:
             track(path, out, opts, progress=False, quiet=True, overwrite=True)
         return tip_errors_csv(out / "truth_errors.csv")
 
-    base = run("kinematics", "kinematics")
+    base = cell("kinematics", "kinematics")
     dist = disturbances(path)
     figs = {}
     for v in VARIANTS:
         for est in ESTIMATORS:
-            err = run(f"{est}-{v}", est, v == "turn")
+            err = cell(f"{est}-{v}", est, v == "turn")
             n = min(len(err), len(base))
             figs[f"{est}-{v}"] = recording_figures(err[:n], base[:n], dist)
     return {"recording": path.name, "angle": angle, "detection": _detection(scene, seed, angle), "figures": figs}

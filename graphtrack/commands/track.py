@@ -115,7 +115,7 @@ def options_from_args(args) -> TrackOptions:
     detection = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha, beta=args.beta,
                                  markers=not args.no_markers, scale=args.detect_scale,
                                  shaft_end=not args.no_shaft_end,
-                                 turn=not getattr(args, "no_turn", False)).check()
+                                 turn=not args.no_turn).check()
     return TrackOptions(estimator=args.estimator, observation=args.observation, detection=detection,
                         estimation=estimator_options_from_args(args), seed=args.seed,
                         tip_feature=args.tip_feature, stereo=not args.mono)
