@@ -119,3 +119,51 @@ def test_estimator_keywords():
     assert "window_move" not in EstimatorOptions(search=False).keywords("smoother")
     assert EstimatorOptions(edge_bias=False).keywords("batch") == {"edge_bias": False}
     assert EstimatorOptions().keywords("kinematics") == {}
+
+
+def test_handeye_sigma_sets_the_prior_and_scales_the_search():
+    """--handeye-sigma 12,5 (mm, deg): the smoother's and batch's prior is (12 mm, 5 deg) per
+    axis, the search's spread and the particle filter's initial cloud grow by 12/5 and
+    5 deg / PRIOR_SIGMA_W; compare hands it to every cell."""
+    import math
+
+    from graphtrack.estimate import options as eo
+
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--handeye-sigma", "12,5"])
+    e = options_from_args(args).estimation
+    b, w = 0.012, math.radians(5.0)
+    assert e.handeye_sigma == pytest.approx((b, w)) and e.prior_sigma == pytest.approx((b, w))
+    fb, fw = b / eo.PRIOR_SIGMA_B, w / eo.PRIOR_SIGMA_W
+    smoother = e.keywords("smoother")
+    assert (smoother["prior_sigma_b"], smoother["prior_sigma_w"]) == pytest.approx((b, w))
+    assert (smoother["search_std_b"], smoother["search_std_w"]) == pytest.approx((eo.SEARCH_STD_B * fb,
+                                                                                  eo.SEARCH_STD_W * fw))
+    pf = e.keywords("pf")
+    assert "prior_sigma_b" not in pf
+    assert (pf["init_std_b"], pf["init_std_w"]) == pytest.approx((eo.INIT_STD_B * fb, eo.INIT_STD_W * fw))
+    assert e.keywords("batch")["prior_sigma_b"] == pytest.approx(b) and e.keywords("kinematics") == {}
+    assert EstimatorOptions().prior_sigma == (eo.PRIOR_SIGMA_B, eo.PRIOR_SIGMA_W)
+
+    cargs = build_parser().parse_args(["compare", "SEQ", "--out", "O", "--handeye-sigma", "12,5"])
+    study = study_options_from_args(cargs)
+    assert study.estimation.handeye_sigma == pytest.approx((b, w))
+    from graphtrack.study.cells import Cell
+    cell = Cell("r", "r", "smoother", "line-intensities", "o", study.cell_options())
+    assert cell.track_options().estimation.handeye_sigma == pytest.approx((b, w))
+
+
+@pytest.mark.parametrize("value", ["12", "a,b", "0,5", "12,-1", "nan,5", "500,5", "12,5,1"])
+def test_bad_handeye_sigma_names_the_option(value):
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--handeye-sigma", value])
+    with pytest.raises(InputError, match="--handeye-sigma"):
+        options_from_args(args)
+
+
+def test_handeye_sigma_is_said_to_be_ignored_by_kinematics():
+    from graphtrack.commands.track import unused_options
+
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--estimator", "kinematics",
+                                      "--handeye-sigma", "12,5"])
+    assert any("--handeye-sigma" in line for line in unused_options(args))
+    args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--handeye-sigma", "12,5"])
+    assert unused_options(args) == []

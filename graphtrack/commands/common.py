@@ -3,6 +3,7 @@ the help formatter every command uses."""
 from __future__ import annotations
 
 import argparse
+import math
 
 from graphtrack.errors import InputError
 from graphtrack.io.topics import ARMS, TopicSelection
@@ -22,6 +23,18 @@ class HelpFormatter(argparse.HelpFormatter):
         if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._StoreConstAction)):
             return text + " (default: off)"
         return text + " (default: %(default)s)"
+
+
+def mm_deg(text: str | None, option: str) -> tuple[float, float] | None:
+    """An option's "MM,DEG" (a translation and a rotation, e.g. "10,4") as (m, rad); None
+    when not given; InputError naming ``option`` for anything else."""
+    if text is None:
+        return None
+    try:
+        mm, deg = (float(v) for v in str(text).replace(" ", "").split(","))
+    except ValueError:
+        raise InputError(f"{option} takes MM,DEG (two numbers, e.g. 10,4), got {text!r}") from None
+    return mm * 1e-3, math.radians(deg)
 
 
 def output_path(value: str) -> str:

@@ -11,13 +11,13 @@ import json
 import math
 from pathlib import Path
 
-from graphtrack.commands.common import (HelpFormatter, add_source_arguments, add_threads_argument, output_path,
-                                        source_from_args)
+from graphtrack.commands.common import (HelpFormatter, add_source_arguments, add_threads_argument, mm_deg,
+                                        output_path, source_from_args)
 from graphtrack.detect import available_detectors
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.estimate import ESTIMATORS
-from graphtrack.estimate.options import SMOOTHER_KINDS, EstimatorOptions
+from graphtrack.estimate.options import PRIOR_SIGMA_B, PRIOR_SIGMA_W, SMOOTHER_KINDS, EstimatorOptions
 from graphtrack.errors import InputError
 from graphtrack.track import TrackOptions, track
 from graphtrack.track.runlog import warn
@@ -60,6 +60,11 @@ def add_estimator_arguments(p, particles: bool = True, smoother: bool = True) ->
         p.add_argument("--no-search", action="store_true",
                        help="pf/smoother: no global start-up search, divergence monitor or re-initialisation "
                             "(the local start-up, for comparisons)")
+    p.add_argument("--handeye-sigma", metavar="MM,DEG", default=None,
+                   help="how far handeye.yaml may be off, per axis (1 sigma) of its translation and rotation: "
+                        "the hand-eye prior and the start-up search's extent; widen it for a rough calibration "
+                        f"(default: {PRIOR_SIGMA_B * 1e3:g},{math.degrees(PRIOR_SIGMA_W):.0f}, tracks "
+                        "errors up to about 10 mm / 5 deg; docs/decisions/handeye-sigma.md)")
     p.add_argument("--seed", type=int, default=TrackOptions.seed,
                    help="seed of the RANSAC observation models and the particle filter")
 
@@ -107,7 +112,8 @@ def estimator_options_from_args(args) -> EstimatorOptions:
     if not math.isfinite(args.lag):
         raise InputError(f"--lag must be a finite number of seconds, got {args.lag!r}")
     return EstimatorOptions(particles=args.particles, seed=args.seed, lag=args.lag, smoother=args.smoother,
-                            edge_bias=not args.no_edge_bias, search=not args.no_search).check()
+                            edge_bias=not args.no_edge_bias, search=not args.no_search,
+                            handeye_sigma=mm_deg(args.handeye_sigma, "--handeye-sigma")).check()
 
 
 def options_from_args(args) -> TrackOptions:
@@ -123,7 +129,8 @@ def options_from_args(args) -> TrackOptions:
 
 #: option (argparse dest) -> the estimators it applies to
 ESTIMATOR_ONLY = {"particles": ("pf",), "lag": ("smoother",), "smoother": ("smoother",),
-                  "no_search": ("pf", "smoother"), "no_edge_bias": ("smoother", "batch")}
+                  "no_search": ("pf", "smoother"), "no_edge_bias": ("smoother", "batch"),
+                  "handeye_sigma": ("pf", "smoother", "batch")}
 
 
 def unused_options(args) -> list[str]:
@@ -131,7 +138,7 @@ def unused_options(args) -> list[str]:
     estimator does not take: one warning line each, instead of silence."""
     d = EstimatorOptions()
     defaults = {"particles": d.particles, "lag": d.lag, "smoother": d.smoother, "no_search": False,
-                "no_edge_bias": False}
+                "no_edge_bias": False, "handeye_sigma": None}
     return [f"warning: --{k.replace('_', '-')} applies to {' and '.join(e)}, not to {args.estimator}: ignored"
             for k, e in ESTIMATOR_ONLY.items()
             if hasattr(args, k) and getattr(args, k) != defaults[k] and args.estimator not in e]

@@ -41,7 +41,8 @@ import numpy as np
 
 from graphtrack.estimate import observation_models as om
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
-from graphtrack.estimate.options import MOTION_SIGMA_B, MOTION_SIGMA_W, PARTICLES, SEARCH
+from graphtrack.estimate.options import (INIT_STD_B, INIT_STD_W, MOTION_SIGMA_B, MOTION_SIGMA_W, PARTICLES, SEARCH,
+                                         SEARCH_STD_B, SEARCH_STD_W)
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
@@ -91,7 +92,7 @@ class ParticleFilter:
     def __init__(self, ctx: TrackingContext,
                  particles: int = PARTICLES, seed: int = 0, markers: bool = True, *,
                  motion_std_b: float = MOTION_SIGMA_B, motion_std_w: float = MOTION_SIGMA_W,
-                 init_std_b: float = 4e-3, init_std_w: float = 3e-2,
+                 init_std_b: float = INIT_STD_B, init_std_w: float = INIT_STD_W,
                  resample_threshold: float = 0.5, roughening: float = 0.5,
                  gamma_rho: float = om.GAMMA_RHO, gamma_theta: float = om.GAMMA_THETA,
                  use_edge_ids: bool = False, pixel_sigma: float = om.PIXEL_SIGMA,
@@ -103,7 +104,7 @@ class ParticleFilter:
                  band_weight: float = om.BAND_WEIGHT,
                  marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
-                 search: bool = SEARCH, search_std_b: float = 6e-3, search_std_w: float = 0.05,
+                 search: bool = SEARCH, search_std_b: float = SEARCH_STD_B, search_std_w: float = SEARCH_STD_W,
                  search_hypotheses: int = 2048, reinit_gap: int = 30,
                  marker_gate_follows_covariance: bool = False, window_move: bool = True,
                  marker_discs: bool = True):

@@ -87,6 +87,7 @@ import numpy as np
 from graphtrack.estimate.divergence import DivergenceMonitor, misfit
 from graphtrack.estimate.pf.projection import project
 from graphtrack.estimate.prior_region import PRIOR_GATE
+from graphtrack.estimate.options import SEARCH_STD_B, SEARCH_STD_W
 from graphtrack.estimate.startup import SIGMAS, Scorer, SearchResult, global_search
 from graphtrack.estimate.window_challenge import HISTORY, scheduled, window_search
 from graphtrack.geometry.se3 import bw_to_matrix, invert, matrix_to_bw
@@ -116,7 +117,7 @@ class SearchInit:
     """Start-up / re-initialisation policy (module doc). ``count``: searches adopted;
     ``searches``: searches run."""
 
-    def __init__(self, ctx, spread=(6e-3, 0.05), gap: int = 30, gate_scale: float = 1.0,
+    def __init__(self, ctx, spread=(SEARCH_STD_B, SEARCH_STD_W), gap: int = 30, gate_scale: float = 1.0,
                  markers: bool = True, margin: float = 5.0, seed: int = 0, monitor: bool = True,
                  n: int = 2048, confirm: int = 5, prior_gate: float = PRIOR_GATE,
                  lock_threshold: float = 0.25, lock_frames: int = 10, innovation_gate: bool = True,

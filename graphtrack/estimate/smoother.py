@@ -53,7 +53,7 @@ import numpy as np
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.estimate.base import STD_COLUMNS, Estimate, monotone_stamp
 from graphtrack.estimate.options import (LAG_S, MOTION_SIGMA_B, MOTION_SIGMA_W, PRIOR_SIGMA_B, PRIOR_SIGMA_W,
-                                         SEARCH, SMOOTHER)
+                                         SEARCH, SEARCH_STD_B, SEARCH_STD_W, SMOOTHER)
 from graphtrack.io.frame import Frame
 from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import smoother_gate
@@ -100,8 +100,8 @@ class FixedLagSmootherEstimator:
                  relinearize_threshold: float = 1e-2, settled_relinearize_threshold: float = 2e-2,
                  settle: float = 2.0, fps: float = 30.0,
                  covariance: bool = True, start_up: bool = True, start_up_iterations: int = 50,
-                 start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = 6e-3,
-                 search_std_w: float = 0.05, reinit_gap: int = 30, search_window: int = 6,
+                 start_up_wait: int = 30, search: bool = SEARCH, search_std_b: float = SEARCH_STD_B,
+                 search_std_w: float = SEARCH_STD_W, reinit_gap: int = 30, search_window: int = 6,
                  marker_gate_follows_covariance: bool = True,
                  refuse_misfit_rise: float | None = REFUSE_MISFIT_RISE, **options):
         self.gtsam = gtsam

@@ -12,11 +12,11 @@ from graphtrack.track import TrackOptions
 STUDY_VERSION = 1
 #: Options that change a cell's result: a study folder holds one value of each.
 CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
-                "alpha", "beta", "markers", "views", "shaft_end", "search", "edge_bias",
+                "alpha", "beta", "markers", "views", "shaft_end", "search", "edge_bias", "handeye_sigma",
                 "arm", "image_topic", "joint_topic", "jaw_topic", "max_joint_gap",
                 "right_image_topic")
 #: the value of an option a study.json written before it existed holds
-CELL_OPTION_DEFAULTS = {"shaft_end": True, "search": True, "edge_bias": True,
+CELL_OPTION_DEFAULTS = {"shaft_end": True, "search": True, "edge_bias": True, "handeye_sigma": None,
                         "arm": None, "image_topic": None, "joint_topic": None, "jaw_topic": None,
                         "max_joint_gap": None, "right_image_topic": None}
 #: the mono / stereo axis: stereo (both images where the recording has a right one),
@@ -54,6 +54,7 @@ class StudyOptions:
                 "particles": e.particles, "lag": e.lag, "smoother": e.smoother, "seed": self.seed,
                 "alpha": d.alpha, "beta": d.beta, "markers": d.markers, "views": self.views,
                 "shaft_end": d.shaft_end, "search": e.search, "edge_bias": e.edge_bias,
+                "handeye_sigma": None if e.handeye_sigma is None else [float(v) for v in e.handeye_sigma],
                 "arm": t.arm, "image_topic": t.image, "joint_topic": t.joint, "jaw_topic": t.jaw,
                 "max_joint_gap": t.joint_gap, "right_image_topic": t.right}
 
@@ -94,7 +95,9 @@ class Cell:
             detection=DetectionOptions(detector=o["detector"], weights=o["weights"], alpha=o["alpha"],
                                        beta=o["beta"], markers=o["markers"], shaft_end=o["shaft_end"]),
             estimation=EstimatorOptions(particles=o["particles"], seed=o["seed"], lag=o["lag"],
-                                        smoother=o["smoother"], search=o["search"], edge_bias=o["edge_bias"]),
+                                        smoother=o["smoother"], search=o["search"], edge_bias=o["edge_bias"],
+                                        handeye_sigma=None if o.get("handeye_sigma") is None
+                                        else tuple(o["handeye_sigma"])),
             seed=o["seed"], stereo=self.stereo)
 
     def topics(self) -> TopicSelection:
