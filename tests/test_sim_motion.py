@@ -107,3 +107,29 @@ def test_shaft_angle_places_the_entry_and_keeps_the_seeds_other_draws(angle):
     got = np.degrees(np.arctan2(-d[1], d[0]))          # counter-clockwise on screen (y down)
     assert abs((got - angle + 180.0) % 360.0 - 180.0) < 15.0
     np.testing.assert_array_equal(sim.delta, Simulation("tissue", 5, seed=11, size=(540, 960)).delta)
+
+
+def test_handeye_error_sets_its_size_and_keeps_the_seeds_other_draws():
+    """Simulation(handeye_error=(b m, w rad)): Delta's translation is b long and its rotation
+    w (scipy's rotation vector as the oracle), in the directions the seed draws without it; the
+    view and the motion are the seed's."""
+    from scipy.spatial.transform import Rotation
+
+    from graphtrack.errors import InputError
+    from graphtrack.sim.simulate import Simulation
+
+    drawn = Simulation("structured", 5, seed=12, size=(270, 480), randomize=True)
+    sim = Simulation("structured", 5, seed=12, size=(270, 480), randomize=True,
+                     handeye_error=(0.025, np.radians(10.0)))
+    t, rv = sim.delta[:3, 3], Rotation.from_matrix(sim.delta[:3, :3]).as_rotvec()
+    assert np.linalg.norm(t) == pytest.approx(0.025) and np.linalg.norm(rv) == pytest.approx(np.radians(10.0))
+    t0, rv0 = drawn.delta[:3, 3], Rotation.from_matrix(drawn.delta[:3, :3]).as_rotvec()
+    np.testing.assert_allclose(t / np.linalg.norm(t), t0 / np.linalg.norm(t0), atol=1e-12)
+    np.testing.assert_allclose(rv / np.linalg.norm(rv), rv0 / np.linalg.norm(rv0), atol=1e-9)
+    np.testing.assert_array_equal(sim.E_he, drawn.E_he)
+    np.testing.assert_array_equal(sim.q_read, drawn.q_read)
+    for bad in [(0.2, 0.1), (0.01, -0.1), (0.01,), "x"]:
+        with pytest.raises(InputError, match="hand-eye error"):
+            Simulation("structured", 5, seed=12, size=(270, 480), handeye_error=bad)
+    with pytest.raises(InputError, match="shaft angle"):
+        Simulation("structured", 5, seed=12, size=(270, 480), shaft_angle=float("nan"))

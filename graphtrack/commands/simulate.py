@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import re
 
-from graphtrack.commands.common import HelpFormatter, output_path
+from graphtrack.commands.common import HelpFormatter, mm_deg, output_path
 from graphtrack.errors import InputError
 from graphtrack.sim import simulate
 
@@ -40,6 +40,9 @@ def add_parser(sub) -> None:
                    help="the direction the shaft enters the image from, deg counter-clockwise from the "
                         "image's right (0: from the right, 90: from the top, 180: from the left) (default: "
                         "drawn from the seed, 20-65 or 115-160)")
+    p.add_argument("--handeye-error", metavar="MM,DEG", default=None,
+                   help="the size of handeye.yaml's error, translation and rotation, its directions drawn "
+                        "from the seed (default: drawn, 2-5 mm / 1-3 deg, with --randomize 0-10 mm / 0-5 deg)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a recording in OUT that was not simulated (refused otherwise)")
@@ -53,6 +56,8 @@ def run(args) -> int:
     out = simulate(args.out, scene=args.scene, frames=args.frames, seed=args.seed, size=_size(args.size),
                    compressed=args.compressed, form=args.form, randomize=args.randomize,
                    progress=args.progress, stereo=args.stereo, image_format=args.image_format,
-                   overwrite=args.overwrite, shaft_angle=args.shaft_angle)
+                   overwrite=args.overwrite, shaft_angle=args.shaft_angle,
+                   handeye_error=mm_deg(args.handeye_error, "--handeye-error"))
     print(f"wrote {out}")
     return 0
+

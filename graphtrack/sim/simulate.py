@@ -92,6 +92,21 @@ def check_args(scene: str, frames: int, size) -> tuple[int, int]:
     return H, W
 
 
+def check_draw_overrides(shaft_angle, handeye_error) -> None:
+    """InputError for a shaft angle that is not a finite number of degrees, or a hand-eye
+    error that is not (|b| m in [0, 0.1], |w| rad in [0, 30 deg])."""
+    if shaft_angle is not None and not is_number(shaft_angle):
+        raise InputError(f"shaft angle must be a finite number of degrees, got {shaft_angle!r}")
+    if handeye_error is None:
+        return
+    try:
+        b, w = (float(v) for v in handeye_error)
+    except (TypeError, ValueError):
+        raise InputError(f"hand-eye error must be (|b| m, |w| rad), got {handeye_error!r}") from None
+    if not (0.0 <= b <= 0.1 and 0.0 <= w <= np.radians(30.0)):
+        raise InputError(f"hand-eye error must be 0-100 mm and 0-30 deg, got {b * 1e3:g} mm, {np.degrees(w):g} deg")
+
+
 class Simulation:
     """A planned recording: scene, true and read joints, truth; frames rendered on demand.
 
@@ -102,13 +117,17 @@ class Simulation:
     occlusions and image effects (``self.scenario``: what was drawn).
     shaft_angle (deg): the image direction the shaft enters from, counter-clockwise from
     the image's right (0: from the right edge, 90: from the top, 180: from the left); None:
-    drawn, 20-65 or 115-160 deg (from an upper edge). The seed's other draws are the same.
+    drawn, 20-65 or 115-160 deg (from an upper edge). handeye_error (|b| m, |w| rad): the
+    hand-eye error's size (its directions drawn); None: drawn as above. For either, the
+    seed's other draws are the same.
     """
 
     def __init__(self, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
                  randomize: bool = False, noise_free: bool = False, antialias: bool = True,
-                 stereo: bool = False, shaft_angle: float | None = None):
+                 stereo: bool = False, shaft_angle: float | None = None,
+                 handeye_error: tuple[float, float] | None = None):
         H, W = check_args(scene, frames, size)
+        check_draw_overrides(shaft_angle, handeye_error)
         self.robot = psm_large_needle_driver()
         ss = np.random.SeedSequence([int(seed), SCENES.index(scene), int(randomize), int(noise_free)])
         (r_scene, r_pose, r_motion, r_read, r_frame, r_label,
@@ -126,6 +145,9 @@ class Simulation:
                                              r_pose.uniform(0.08, 0.16) * W, cam.fx)
         if noise_free:
             self.delta = np.eye(4)
+        elif handeye_error is not None:   # the same draws, sizes fixed
+            b, w = (float(v) for v in handeye_error)
+            self.delta = motion.handeye_error(r_pose, (b, b), (np.degrees(w),) * 2)
         else:
             self.delta = (motion.handeye_error(r_pose, HANDEYE_RANDOM[0], HANDEYE_RANDOM[1]) if randomize
                           else motion.handeye_error(r_pose))
@@ -277,7 +299,8 @@ def _prepare_out(out: Path, overwrite: bool = False) -> None:
 def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 0, size=(540, 960),
              compressed: bool = False, form: str = "bag", randomize: bool = False, progress: bool = True,
              noise_free: bool = False, stereo: bool = False, image_format: str = "png",
-             overwrite: bool = False, shaft_angle: float | None = None) -> Path:
+             overwrite: bool = False, shaft_angle: float | None = None,
+             handeye_error: tuple[float, float] | None = None) -> Path:
     """Write a simulated recording into ``out_dir`` (sequence format + truth.csv) and return it.
 
     scene: "structured" | "tissue"; frames > 0; size = (H, W) px; form: "bag"
@@ -290,16 +313,16 @@ def simulate(out_dir, scene: str = "structured", frames: int = 300, seed: int = 
     scenario.json (what was drawn; sim/scenario.py). ``out_dir`` holding a recording
     that was not simulated is refused unless ``overwrite`` (one simulated before is
     replaced). Frames are rendered and written one at a time. ``shaft_angle`` (deg): the
-    direction the shaft enters the image from (:class:`Simulation`); None: drawn.
+    direction the shaft enters the image from; ``handeye_error`` (|b| m, |w| rad): the size of
+    handeye.yaml's error (:class:`Simulation`); None: drawn.
     """
     if image_format not in ("png", "jpeg"):
         raise InputError(f"unknown image format {image_format!r}; choose png or jpeg")
     if form not in ("bag", "folder"):
         raise InputError(f"unknown form {form!r}; choose bag or folder")
     check_seed(seed)
-    if shaft_angle is not None and not is_number(shaft_angle):
-        raise InputError(f"shaft angle must be a finite number of degrees, got {shaft_angle!r}")
-    sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo, shaft_angle=shaft_angle)
+    sim = Simulation(scene, frames, seed, size, randomize, noise_free, stereo=stereo, shaft_angle=shaft_angle,
+                     handeye_error=handeye_error)
     out = Path(out_dir)
     _prepare_out(out, overwrite)
     save_robot_json(out / "robot.json", sim.robot)
