@@ -241,7 +241,8 @@ def lock_problem(result: dict, recording: str | Path) -> str | None:
     text = (f"{recording}: the estimator started over from a global search {starts} times in {n} frames with "
             f"detections (a lock that holds starts once or twice per recording): no pose near the hand-eye "
             f"prior explains the images from one frame to the next, so the estimates are not to be trusted; "
-            f"check camera_calibration.yaml (K1, D1), handeye.yaml and robot.json's tool")
+            f"check camera_calibration.yaml (K1, D1), handeye.yaml and robot.json's tool; a handeye.yaml "
+            f"known to be far off (beyond about 10 mm / 5 deg) needs a wider prior: --handeye-sigma MM,DEG")
     if result.get("stereo"):
         text += ("; with both images: if --mono tracks steadily, camera_calibration.yaml's R and T, or which "
                  "images are the left ones (frames/ and frames_right/, or the image topics), are wrong")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -26,6 +27,7 @@ from tqdm import tqdm
 from graphtrack.allocator import keep_freed_memory
 from graphtrack.errors import FrameError, InputError
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
+from graphtrack.estimate.prior_region import PRIOR_HINT, correction
 from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_metrics
 from graphtrack.eval.robustness import no_detection_stretches
 from graphtrack.eval.stereo import stereo_tip_metrics
@@ -244,13 +246,16 @@ def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: Tracki
     result = _result(path, out, options, rec, ctx, run, pipe.left_only, pipe.needs_images)
     result.update(run.summary(wall))
     result["estimator_report"] = pipe.estimator.report()
+    warnings = rec.warnings + notes
     if pipe.needs_images:
+        if hint := _correction(result, options, ctx, run):
+            warnings.append(hint)
+            warn(f"warning: {hint}", quiet)
         result["frames_with_detections"] = int(sum(run.informative))
         result["no_detection_stretches"] = stretches = no_detection_stretches(run.frames, run.informative)
         for a, b in stretches:
             warn(f"warning: no detections in frames {a}-{b - 1} ({b - a} frames): the pose there is the "
                   "motion model's prediction (std_* columns grow)", quiet)
-    warnings = rec.warnings + notes
     if result.get("frames_tip_in_front") and not result.get("frames_tip_in_image"):
         warnings.append(f"the tool tip projects outside the image in every tracked frame; check "
                         f"{rec.path / 'handeye.yaml'}, K1 and D1 in camera_calibration.yaml and robot.json's "
@@ -261,6 +266,21 @@ def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: Tracki
         warn(f"warning: {unsteady}", quiet or lock_refused(result))   # refused: said once, as the error
     result["recording_warnings"] = capped(warnings)
     return result
+
+
+def _correction(result: dict, options: TrackOptions, ctx: TrackingContext, run: RunLog) -> str | None:
+    """metrics.json's ``handeye_correction`` (:func:`graphtrack.estimate.prior_region.correction`
+    over the frames with detections); a warning line when it lies beyond the hand-eye prior."""
+    sigma_b, sigma_w = options.estimation.prior_sigma
+    Es = [row[4] for row, seen in zip(run.rows, run.informative) if seen]
+    c = result["handeye_correction"] = correction(Es, ctx.handeye, sigma_b, sigma_w)
+    if not c or c["prior_distance"] <= PRIOR_HINT:
+        return None
+    wider = (math.ceil(max(sigma_b * 1e3, 0.6 * c["b_mm"])), math.ceil(max(math.degrees(sigma_w), 0.6 * c["w_deg"])))
+    return (f"the tracked pose sits {c['b_mm']:.1f} mm / {c['w_deg']:.1f} deg from handeye.yaml (median over "
+            f"{c['frames']} frames), beyond the hand-eye prior's 99 % region ({sigma_b * 1e3:g} mm / "
+            f"{math.degrees(sigma_w):.1f} deg per axis): if the calibration is that far off, track again with "
+            f"--handeye-sigma {wider[0]},{wider[1]} (docs/decisions/handeye-sigma.md)")
 
 
 #: recording warnings kept in metrics.json (the rest counted)

@@ -1,0 +1,55 @@
+"""The hand-eye prior's region and a run's correction (graphtrack.estimate.prior_region), and
+the tracker's warning when a run's correction lies beyond the prior."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from graphtrack.estimate.prior_region import PRIOR_HINT, correction, prior_distance
+
+
+def _perturbed(E0, b, w):
+    """[R(w) b; 0 1] . E0, R from scipy's rotation vector (the oracle)."""
+    D = np.eye(4)
+    D[:3, :3], D[:3, 3] = Rotation.from_rotvec(w).as_matrix(), b
+    return D @ E0
+
+
+def test_correction_is_the_median_perturbation():
+    rng = np.random.default_rng(3)
+    E0 = _perturbed(np.eye(4), rng.normal(size=3) * 0.05, rng.normal(size=3) * 0.3)
+    sizes = [(0.010, 2.0), (0.020, 4.0), (0.030, 8.0)]            # |b| m, |w| deg per frame
+    Es, d = [], []
+    for nb, nw in sizes:
+        ub, uw = rng.normal(size=3), rng.normal(size=3)
+        b, w = nb * ub / np.linalg.norm(ub), math.radians(nw) * uw / np.linalg.norm(uw)
+        Es.append(_perturbed(E0, b, w))
+        d.append(np.sum((b / 0.005) ** 2) + np.sum((w / 0.035) ** 2))
+    c = correction(Es, E0, 0.005, 0.035)
+    assert c["frames"] == 3
+    assert c["b_mm"] == pytest.approx(20.0, abs=1e-6) and c["w_deg"] == pytest.approx(4.0, abs=1e-6)
+    assert c["prior_distance"] == pytest.approx(np.median(d), rel=1e-6)
+    assert prior_distance(Es[0], E0, 0.005, 0.035) == pytest.approx(d[0], rel=1e-6)
+    assert correction([], E0, 0.005, 0.035) == {}
+
+
+@pytest.mark.parametrize("size,warned", [((0.025, 10.0), True), ((0.002, 1.0), False)])
+def test_a_run_far_from_its_calibration_names_handeye_sigma(size, warned, tmp_path, capsys):
+    """A recording whose handeye.yaml is 25 mm / 10 deg off: the smoother's correction lies
+    beyond the prior's 99 % region, metrics.json says so and the run warns, naming
+    --handeye-sigma; 2 mm / 1 deg off: no warning."""
+    from graphtrack.cli import main
+    from graphtrack.sim.simulate import simulate
+
+    rec = simulate(tmp_path / "rec", "structured", frames=10, seed=8, size=(270, 480), form="folder",
+                   progress=False, handeye_error=(size[0], math.radians(size[1])))
+    capsys.readouterr()
+    assert main(["track", str(rec), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    c = m["handeye_correction"]
+    assert c["frames"] > 0 and (c["prior_distance"] > PRIOR_HINT) is warned
+    assert any("--handeye-sigma" in line for line in m["recording_warnings"]) is warned
