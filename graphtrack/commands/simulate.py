@@ -60,4 +60,3 @@ def run(args) -> int:
                    handeye_error=mm_deg(args.handeye_error, "--handeye-error"))
     print(f"wrote {out}")
     return 0
-
