@@ -28,7 +28,12 @@ def prior_distance(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: fl
     """|x / sigma|^2 of E = Exp(x) . E_ref, x = (b [m], w [rad]) the left perturbation,
     sigma = (sigma_b [m] x 3, sigma_w [rad] x 3): the squared Mahalanobis distance from the prior."""
     x = matrix_to_bw(np.asarray(E, float) @ invert(np.asarray(E_ref, float)))
-    return float(np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2))
+    return float(_scaled_sq(x, sigma_b, sigma_w))
+
+
+def _scaled_sq(x: np.ndarray, sigma_b: float, sigma_w: float) -> np.ndarray:
+    """|x / sigma|^2 over the last axis of x (..., 6), sigma = (sigma_b x 3, sigma_w x 3)."""
+    return np.sum((np.asarray(x, float) / np.repeat([sigma_b, sigma_w], 3)) ** 2, axis=-1)
 
 
 def outside_prior(E: np.ndarray, E_ref: np.ndarray, sigma_b: float, sigma_w: float,
@@ -46,7 +51,7 @@ def correction(Es, E_ref: np.ndarray, sigma_b: float, sigma_w: float) -> dict:
         return {}
     inv = invert(np.asarray(E_ref, float))
     x = np.array([matrix_to_bw(E @ inv) for E in Es])
-    d = np.sum((x / np.repeat([sigma_b, sigma_w], 3)) ** 2, axis=1)
+    d = _scaled_sq(x, sigma_b, sigma_w)
     return {"b_mm": float(np.median(np.linalg.norm(x[:, :3], axis=1)) * 1e3),
             "w_deg": float(np.degrees(np.median(np.linalg.norm(x[:, 3:], axis=1)))),
             "prior_distance": float(np.median(d)), "frames": len(Es)}
