@@ -1,5 +1,6 @@
 """The hand-eye prior's region and a run's correction (graphtrack.estimate.prior_region), and
-the tracker's warning when a run's correction lies beyond the prior."""
+the tracker's warnings when a run's correction lies beyond the prior or its estimate explained
+almost none of its frames."""
 from __future__ import annotations
 
 import json
@@ -53,3 +54,27 @@ def test_a_run_far_from_its_calibration_names_handeye_sigma(size, warned, tmp_pa
     c = m["handeye_correction"]
     assert c["frames"] > 0 and (c["prior_distance"] > PRIOR_HINT) is warned
     assert any("--handeye-sigma" in line for line in m["recording_warnings"]) is warned
+
+
+@pytest.mark.parametrize("size,warned", [((0.040, 15.0), True), ((0.002, 1.0), False)])
+def test_a_run_that_never_reached_the_tool_says_so(size, warned, tmp_path, capsys):
+    """A recording whose handeye.yaml is 40 mm / 15 deg off (seed 3): the prediction lies
+    beyond the search's reach, no mode is adopted and the estimate stays at the calibration
+    (its correction 0, no prior-distance hint), explaining none of the frames it judges;
+    metrics.json counts them and the run warns, naming --handeye-sigma. 2 mm / 1 deg off:
+    every frame after the start-up is judged and explained, no such warning."""
+    from graphtrack.cli import main
+    from graphtrack.sim.simulate import simulate
+
+    rec = simulate(tmp_path / "rec", "structured", frames=14, seed=3, size=(270, 480), form="folder",
+                   progress=False, handeye_error=(size[0], math.radians(size[1])))
+    capsys.readouterr()
+    assert main(["track", str(rec), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    r = m["estimator_report"]
+    assert r["frames_judged"] == m["frames_with_detections"] - 1 == 13   # the start-up's frame is searched
+    assert (r["frames_explained"] < 0.15 * r["frames_judged"]) is warned
+    assert (r["frames_explained"] == r["frames_judged"]) is not warned
+    unexplained = [line for line in m["recording_warnings"] if "the estimate explained the detections" in line]
+    assert len(unexplained) == int(warned)
+    assert all("--handeye-sigma" in line for line in unexplained)

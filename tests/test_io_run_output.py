@@ -1,9 +1,9 @@
 """The run's verdicts on metrics.json (graphtrack.io.run_output): the lock that does not
-hold, judged on hand-made metrics."""
+hold and the estimate the images did not confirm, judged on hand-made metrics."""
 import pytest
 
 from graphtrack.errors import InputError
-from graphtrack.io.run_output import lock_problem, lock_refused, require_lock
+from graphtrack.io.run_output import lock_problem, lock_refused, require_lock, unexplained_problem
 
 
 def _metrics(adopted, frames, stereo=None, batch=False):
@@ -43,6 +43,31 @@ def test_batch_judged_by_its_online_smoother_and_no_search_never():
     assert not lock_refused({"estimator_report": {}, "frames_with_detections": 12})
     assert lock_problem({"estimator_report": {}}, "SEQ") is None
     require_lock({}, "SEQ")
+
+
+@pytest.mark.parametrize("judged, explained, warned", [
+    (20, 2, True),             # under 15 %
+    (20, 3, False),            # 15 %: not under EXPLAINED_WARN
+    (9, 0, False),             # too few frames judged to say
+    (10, 0, True),
+    (0, 0, False),
+])
+def test_unexplained_thresholds(judged, explained, warned):
+    report = {"adopted": 1, "frames_judged": judged, "frames_explained": explained}
+    for m in ({"estimator_report": report}, {"estimator_report": {"iterations": 3, "online": report}}):
+        problem = unexplained_problem(m, "SEQ")
+        assert (problem is not None) == warned
+        if warned:
+            assert problem.startswith(f"SEQ: the estimate explained the detections on {explained} of the "
+                                      f"{judged} frames")
+            assert "--handeye-sigma" in problem
+
+
+def test_unexplained_never_without_the_counts():
+    assert unexplained_problem({}, "SEQ") is None
+    assert unexplained_problem({"estimator_report": {}}, "SEQ") is None                 # kinematics
+    assert unexplained_problem({"estimator_report": {"adopted": 1}}, "SEQ") is None     # --no-search
+    assert unexplained_problem({"estimator_report": "odd"}, "SEQ") is None
 
 
 def test_a_study_folder_and_a_run_folder_are_not_mixed(tmp_path):

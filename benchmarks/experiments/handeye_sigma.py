@@ -11,9 +11,11 @@ seed, so the same scene and motion, the error's directions the same). Per size a
 (``default``; ``wide``: ``--handeye-sigma`` WIDE), learned detector + ``line-intensities``,
 smoother and particle filter (seed 0): the robustness benchmark's per-recording figures
 (bench_robustness.summarise), and the fraction of the default runs whose metrics.json
-correction lies beyond the prior's 99 % region (the warning that names --handeye-sigma), and
-how many runs ended with exit status 2 because the estimator kept starting over from its
-search (scored as they tracked).
+correction lies beyond the prior's 99 % region (the warning that names --handeye-sigma), whose
+estimate explained under 15 % of the frames it judged (the warning for a run that never
+reached the tool, graphtrack.io.run_output.unexplained_problem), either of the two, and how many
+runs ended with exit status 2 because the estimator kept starting over from its search (scored
+as they tracked).
 Measurements: docs/decisions/handeye-sigma.md.
 """
 from __future__ import annotations
@@ -50,7 +52,8 @@ def _recording(job: tuple[int, tuple | None]) -> dict:
     from graphtrack.errors import InputError
     from graphtrack.estimate.options import EstimatorOptions
     from graphtrack.eval.robustness import recording_figures
-    from graphtrack.io.run_output import lock_refused
+    from graphtrack.estimate.prior_region import PRIOR_HINT
+    from graphtrack.io.run_output import lock_refused, unexplained_problem
     from graphtrack.sim.simulate import RANDOMIZED_VERSION, simulate
     from graphtrack.threads import limit_threads
     from graphtrack.track import TrackOptions, track
@@ -70,8 +73,9 @@ def _recording(job: tuple[int, tuple | None]) -> dict:
     runs = DATA / "runs" / path.name
 
     def cell(name: str, estimator: str, sigma=None) -> tuple:
-        """(per-frame tip error px, metrics.json's handeye_correction, refused: the run ended
-        with exit status 2 because its estimator kept starting over, lock_refused)."""
+        """(per-frame tip error px, the run's verdicts: ``hint``, its correction beyond
+        PRIOR_HINT; ``unexplained``, unexplained_problem's warning; ``refused``, it ended with
+        exit status 2 because its estimator kept starting over, lock_refused)."""
         out = runs / name
         if not (out / "truth_errors.csv").is_file():
             est = EstimatorOptions(handeye_sigma=sigma)
@@ -81,18 +85,20 @@ def _recording(job: tuple[int, tuple | None]) -> dict:
             except InputError:   # refused after writing its outputs (lock_refused): scored, and counted
                 pass
         metrics = json.loads((out / "metrics.json").read_text())
-        return tip_errors_csv(out / "truth_errors.csv"), metrics.get("handeye_correction", {}), lock_refused(metrics)
+        hint = metrics.get("handeye_correction", {}).get("prior_distance", 0.0) > PRIOR_HINT
+        return tip_errors_csv(out / "truth_errors.csv"), {"hint": hint, "refused": lock_refused(metrics),
+                                                          "unexplained": unexplained_problem(metrics, path) is not None}
 
-    base, _, _ = cell("kinematics", "kinematics")
+    base, _ = cell("kinematics", "kinematics")
     dist = disturbances(path)
-    figs, hints, refused = {}, {}, {}
+    figs, verdicts = {}, {}
     wide = (WIDE[0] * 1e-3, math.radians(WIDE[1]))
     for est in ESTIMATORS:
         for v in VARIANTS:
-            err, hints[f"{est}-{v}"], refused[f"{est}-{v}"] = cell(f"{est}-{v}", est, wide if v == "wide" else None)
+            err, verdicts[f"{est}-{v}"] = cell(f"{est}-{v}", est, wide if v == "wide" else None)
             n = min(len(err), len(base))
             figs[f"{est}-{v}"] = recording_figures(err[:n], base[:n], dist)
-    return {"recording": path.name, "size": _name(size), "figures": figs, "corrections": hints, "refused": refused}
+    return {"recording": path.name, "size": _name(size), "figures": figs, "verdicts": verdicts}
 
 
 def run(recordings: int = RECORDINGS, workers: int = 2) -> dict:
@@ -100,29 +106,30 @@ def run(recordings: int = RECORDINGS, workers: int = 2) -> dict:
 
     from bench_robustness import summarise
 
-    from graphtrack.estimate.prior_region import PRIOR_HINT
-
     DATA.mkdir(parents=True, exist_ok=True)
     jobs = [(i, size) for size in SIZES for i in range(recordings)]
     with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn")) as ex:
         per = list(ex.map(_recording, jobs))
     out, rows = {}, ["| hand-eye error | estimator | variant | mean tip px p50 / p95 / max | converged <= 15 | "
-                     "never worse | re-acquired <= 15 | hint fired | refused (exit 2) |",
-                     "|---|---|---|---|---|---|---|---|---|"]
+                     "never worse | re-acquired <= 15 | hint | unexplained | either | refused (exit 2) |",
+                     "|---|---|---|---|---|---|---|---|---|---|---|"]
     for size in SIZES:
         group = [p for p in per if p["size"] == _name(size)]
         for est in ESTIMATORS:
             for v in VARIANTS:
                 k = f"{est}-{v}"
                 s = summarise([p["figures"][k] for p in group])
-                fired = sum(p["corrections"][k].get("prior_distance", 0.0) > PRIOR_HINT for p in group) / len(group)
-                refused = sum(p["refused"][k] for p in group)
+                fired = {w: sum(p["verdicts"][k][w] for p in group) / len(group) for w in ("hint", "unexplained")}
+                fired["either"] = sum(p["verdicts"][k]["hint"] or p["verdicts"][k]["unexplained"]
+                                      for p in group) / len(group)
+                refused = sum(p["verdicts"][k]["refused"] for p in group)
                 out[f"{_name(size)}.{k}"] = {**{x: s[x] for x in ("mean_px_p50", "mean_px_p95", "mean_px_max",
                                                                    "converged15", "never_worse", "reacquired15")},
-                                             "hint": fired, "refused": refused}
+                                             **fired, "refused": refused}
                 rows.append(f"| {_name(size)} | {est} | {v} | {s['mean_px_p50']:.2f} / {s['mean_px_p95']:.2f} / "
                             f"{s['mean_px_max']:.1f} | {s['converged15']:.3f} | {s['never_worse']:.3f} | "
-                            f"{s['reacquired15']:.3f} | {fired:.2f} | {refused} |")
+                            f"{s['reacquired15']:.3f} | {fired['hint']:.2f} | {fired['unexplained']:.2f} | "
+                            f"{fired['either']:.2f} | {refused} |")
     out["per_recording"] = {p["recording"]: {k: round(f["mean_px"], 2) for k, f in p["figures"].items()} for p in per}
     out["table"] = "\n".join(rows)
     return out

@@ -134,7 +134,8 @@ class SearchInit:
         self.n = int(n)
         self.rng = np.random.default_rng(seed)
         self.since = None            # informative frames: None before the first, else frames since
-        self.count = self.searches = 0
+        self.count = self.searches = self.challenges = self.switches = 0
+        self.judged = self.explained = 0   # frames scored at the prediction; of those, explained (misfit <= threshold)
         self.result = None           # the adopted SearchResult (x relative to E_ref)
         self.candidate: _Candidate | None = None
         self.monitor = DivergenceMonitor() if monitor else None
@@ -155,7 +156,6 @@ class SearchInit:
         self.motion_cov = None if motion_cov is None else np.asarray(motion_cov, float)
         self.window = int(window)    # frames of the window challenge (0: no challenge)
         self.history: deque = deque(maxlen=HISTORY)   # (q, observation, loglik at the estimate) of frames used
-        self.challenges = self.switches = 0
         self.blind = 0               # frames in a row the estimate saw nothing of (no detections, or none explained)
         self.used = 0                # frames used since the last start (the challenge's schedule)
         self.evidence: deque = deque(maxlen=EVIDENCE)   # (q, observation) of the latest frames explained
@@ -164,10 +164,10 @@ class SearchInit:
 
     def report(self) -> dict[str, int]:
         """The policy's counts over the run: metrics.json's ``estimator_report`` (docs/sequence-format.md)."""
-        return {"searches": self.searches, "adopted": self.count,
-                "divergence_alarms": self.monitor.fired if self.monitor is not None else 0,
-                "outlier_frames": self.rejections, "vetoed": self.vetoed, "prior_guard": self.guarded,
-                "window_challenges": self.challenges, "window_switches": self.switches}
+        return {"searches": self.searches, "adopted": self.count, "divergence_alarms": self.monitor.fired
+                if self.monitor is not None else 0, "outlier_frames": self.rejections, "vetoed": self.vetoed,
+                "prior_guard": self.guarded, "window_challenges": self.challenges, "window_switches": self.switches,
+                "frames_judged": self.judged, "frames_explained": self.explained}
 
     def _x(self, E: np.ndarray) -> np.ndarray:
         return matrix_to_bw(np.asarray(E, float) @ invert(self.E_ref))
@@ -294,6 +294,8 @@ class SearchInit:
             return self._adopt(self._search(q, observation, np.zeros(6)))
         ll_cur, floor = self.scorer.with_floor(q, observation, x_cur)
         m_cur = self.misfit = misfit(ll_cur, floor)
+        self.judged += bool(np.isfinite(m_cur))
+        self.explained += bool(m_cur <= self.threshold)
         self.blind = self.blind + 1 if not m_cur < BLIND_MISFIT else 0
         if self.blind >= self.gap:
             self.evidence.clear()   # the lock's frames are as old as after a gap: E has moved with the arm

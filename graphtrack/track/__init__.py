@@ -34,7 +34,7 @@ from graphtrack.eval.stereo import stereo_tip_metrics
 from graphtrack.io.context import TrackingContext
 from graphtrack.io.run_output import (check_run_arguments, deferred_interrupts, lock_problem, lock_refused,
                                       outside_recording, prepare_run_dir, require_lock, require_tool_in_front,
-                                      require_tracked, write_json)
+                                      require_tracked, unexplained_problem, write_json)
 from graphtrack.io.outdir import writable_dir
 from graphtrack.io.recording import Recording, open_recording
 from graphtrack.io.topics import TopicSelection
@@ -261,7 +261,7 @@ def _metrics(path, out: Path, options: TrackOptions, rec: Recording, ctx: Tracki
                         f"{rec.path / 'handeye.yaml'}, K1 and D1 in camera_calibration.yaml and robot.json's "
                         "tool_tip")
         warn(f"warning: {warnings[-1]}", quiet)
-    if unsteady := lock_problem(result, path):
+    if unsteady := lock_problem(result, path) or unexplained_problem(result, path):
         warnings.append(unsteady)
         warn(f"warning: {unsteady}", quiet or lock_refused(result))   # refused: said once, as the error
     result["recording_warnings"] = capped(warnings)
