@@ -17,6 +17,7 @@ from graphtrack.io.bag_write import write_bag
 from graphtrack.io.folder import write_folder
 from graphtrack.io.handeye import save_handeye
 from graphtrack.io.recording import open_recording
+from graphtrack.robot.kinematics import check_joints
 
 H, W = 48, 64
 JOINTS, JAW = "/dvrk/PSM1/state_joint_current", "/dvrk/PSM1/state_jaw_current"
@@ -709,6 +710,12 @@ def test_jaw_readings_for_a_robot_without_gripper_are_noted(tmp_path):
     assert [w for w in rec.warnings if "jaw" in w] == [
         f"{seq}: the recording has jaw readings but {seq / 'robot.json'} has no has_gripper: the jaw is ignored "
         "(a tool with jaws needs \"has_gripper\": true, or its tip is placed as if they were closed)"]
+    # ignored: each frame's q is the DH joints alone, which is what the kinematics takes
+    frames = list(rec.frames())
+    assert rec.has_jaw and not rec.uses_jaw and len(frames) == 2
+    for f in frames:
+        assert not isinstance(f, FrameError) and np.isnan(f.jaw) and f.q.shape == (rec.robot.n_joints,)
+        check_joints(rec.robot, f.q)
 
 
 def test_two_bags_name_a_split_recording(tmp_path):

@@ -145,6 +145,13 @@ class Recording:
         return bool(self.source.has_jaw)
 
     @property
+    def uses_jaw(self) -> bool:
+        """True when the jaw readings are used: the recording carries them and robot.json's
+        tool has jaws (a jawless tool's are ignored: every Frame.jaw is NaN; the recording's
+        notes say so, :func:`graphtrack.io.consistency.consistency_notes`)."""
+        return self.has_jaw and bool(getattr(self.robot, "has_gripper", True))
+
+    @property
     def truncated(self) -> bool:
         """True when the bag was damaged and read only up to the damage."""
         return bool(self.source.truncated)
@@ -164,7 +171,7 @@ class Recording:
         joints, jaw = src.joint_tables()
         check_table(joints.values, np.zeros(len(joints.values)), bounds, False, f"{src.path}: {src.joint_topic}",
                     "messages", "message")
-        if self.has_jaw and bounds is not None and jaw.values.shape[1]:   # no column: every jaw message empty
+        if self.uses_jaw and bounds is not None and jaw.values.shape[1]:   # no column: every jaw message empty
             check_table(np.zeros((len(jaw.values), 0)), jaw.values[:, 0], np.zeros(0), True,
                         f"{src.path}: {src.jaw_topic}", "messages", "message")
 
@@ -178,7 +185,7 @@ class Recording:
         """
         n_exp = self.n_joints if expected_joints is None else int(expected_joints)
         h, w = self.image_size
-        has_jaw = self.has_jaw
+        has_jaw = self.uses_jaw
         bounds = joint_bounds(self.robot, n_exp)
         if isinstance(self.source, BagSource) and start == 0:
             self._check_bag_units(bounds)
@@ -186,6 +193,8 @@ class Recording:
             if isinstance(item, FrameError):
                 yield item
                 continue
+            if not has_jaw:
+                item.jaw = float("nan")   # Frame.q: the DH joints alone
             problem = frame_problem(item, n_exp, (h, w), bounds, has_jaw)
             if problem is not None:
                 yield problem
