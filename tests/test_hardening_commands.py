@@ -203,7 +203,27 @@ def test_notes_on_right_inputs_a_recording_cannot_use(folder_rec, tmp_path):
     shutil.copy(rec_dir / "labels.csv", rec_dir / "labels_right.csv")
     warnings = open_recording(rec_dir).warnings
     assert any("frames_right: not a folder" in w for w in warnings), warnings
-    assert any("labels_right.csv: not scored: the recording is not stereo" in w for w in warnings), warnings
+    assert any("labels_right.csv: not scored: camera_calibration.yaml has no right camera (K2, D2, R, T)" in w
+               for w in warnings), warnings
+
+
+def test_right_labels_need_the_right_camera_not_its_images(tmp_path):
+    """labels_right.csv is scored through K2, D2, R, T alone (the estimate projected into
+    the right camera), so a stereo recording whose right images are unusable (here numbered
+    from 1) scores it, and no note says otherwise."""
+    from graphtrack.cli import main
+    from graphtrack.sim.simulate import simulate
+
+    rec = simulate(tmp_path / "rec", frames=4, size=(270, 480), form="folder", progress=False, stereo=True)
+    right = sorted((rec / "frames_right").iterdir())
+    for p in reversed(right):
+        stem = int(p.stem)
+        p.rename(p.with_name(f"{stem + 1:0{len(p.stem)}d}{p.suffix}"))
+    warnings = open_recording(rec).warnings
+    assert not any("labels_right.csv" in w for w in warnings), warnings
+    assert main(["track", str(rec), "--out", str(tmp_path / "run"), "--estimator", "kinematics", "--quiet"]) == 0
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["frames_scored_right"] == 4 and m["tip_error_right_px"]["mean"] >= 0
 
 
 # -- bags: per-frame problems are counted skips, whole-bag ones one line ----------------------

@@ -28,9 +28,9 @@ def consistency_notes(rec) -> list[str]:
     if rec.has_right_images and rec.calibration.right is None:
         notes.append(f"{rec.path}: right images but no K2, D2, R, T in camera_calibration.yaml; "
                      "tracking the left image only")
-    if rec.labels_right is not None and not rec.stereo:
-        notes.append(f"{rec.path / 'labels_right.csv'}: not scored: the recording is not stereo "
-                     "(it needs right images and K2, D2, R, T in camera_calibration.yaml)")
+    if rec.labels_right is not None and not rec.calibration.stereo:   # scored through the right camera alone
+        notes.append(f"{rec.path / 'labels_right.csv'}: not scored: camera_calibration.yaml has no right "
+                     "camera (K2, D2, R, T)")
     notes += calibration_notes(rec.calibration, rec.path / "camera_calibration.yaml")
     right_dir = rec.path / "frames_right"
     if isinstance(rec.source, FolderSource) and right_dir.exists() and not right_dir.is_dir():
