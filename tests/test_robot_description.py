@@ -19,6 +19,14 @@ def good():
     return psm_large_needle_driver().to_json()
 
 
+def _jawless(d):
+    """d without its jaws: has_gripper false, nothing on the jaw links (7, 8), the tip on link 6."""
+    d.update(has_gripper=False, tool_tip={**d["tool_tip"], "link": 6},
+             skeleton_structure=[s for s in d["skeleton_structure"] if max(s["link1"], s["link2"]) <= 6],
+             point_features=[p for p in d["point_features"] if p["link"] <= 6])
+    return d
+
+
 def test_roundtrip(tmp_path):
     save_robot_json(tmp_path / "robot.json", psm_large_needle_driver())
     r = load_robot_json(tmp_path / "robot.json")
@@ -48,6 +56,15 @@ def test_marker_radius_is_optional(tmp_path):
     (lambda d: d["point_features"][1].update(radius=0.5), "point_features[1]: radius"),
     (lambda d: d["tool_tip"].pop("link"), "tool_tip: link"),
     (lambda d: d.update(has_gripper="yes"), "has_gripper"),
+    (lambda d: d["shaft_features"][0].update(radius=4), "shaft_features[0]: radius: must be in (0, 0.1] m, got 4 "
+                                                        "(millimetres? robot.json is in metres)"),
+    (lambda d: d["shaft_features"][0].update(direction=[0, 0, 0]), "shaft_features[0]: direction: must be non-zero"),
+    (lambda d: d.update(joint_limits=[[-1, 1]] * 8), "joint_limits: expected 6 (the DH joints) or 7 (and the jaw) "
+                                                     "pairs [qmin, qmax], got 8 pairs"),
+    (lambda d: _jawless(d).update(joint_limits=[[-1, 1]] * 7),
+     "joint_limits: expected 6 pairs [qmin, qmax], got 7 pairs (a jaw pair, but has_gripper is false)"),
+    (lambda d: d.update(joint_limits=[[-1, 1]] * 6 + [[0, "x"]]),
+     'joint_limits: pair 6 is not [qmin, qmax] of two numbers: [0, "x"]'),
 ])
 def test_bad_robot_json(tmp_path, mutate, needle):
     d = good()

@@ -253,8 +253,11 @@ def parse_robot(doc: dict, path: Path) -> RobotDescription:
                          d.get(o, "direction", "vec3", bound=L), d.get(o, "radius", bound=L),
                          d.get(o, "end", default=None, required=False, bound=L))
         _check_link(d, s.link, n_links, "link")
-        if not np.linalg.norm(s.direction) > 1e-9 or not 0 < s.radius <= 0.1:
-            d.fail("direction/radius", "direction must be non-zero and radius in (0, 0.1] m")
+        if not np.linalg.norm(s.direction) > 1e-9:
+            d.fail("direction", f"must be non-zero, got {np.asarray(s.direction).tolist()}")
+        if not 0 < s.radius <= 0.1:
+            d.fail("radius", f"must be in (0, 0.1] m, got {s.radius:g}"
+                   + (" (millimetres? robot.json is in metres)" if 0.1 < s.radius <= 100 else ""))
         shafts.append(s)
     skel = []
     for i, o in enumerate(d.items(doc, "skeleton_structure")):
@@ -279,9 +282,16 @@ def _joint_limits(d: _Doc, raw, n_dh: int, n_j: int) -> np.ndarray | None:
     """robot.json ``joint_limits``: n_dh or n_j pairs [qmin, qmax] of finite numbers, qmin <= qmax."""
     if raw is None:
         return None
-    if (not isinstance(raw, list) or len(raw) not in (n_dh, n_j)
-            or not all(isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p) for p in raw)):
-        d.fail("joint_limits", f"expected {n_j} pairs [qmin, qmax] of numbers, got {json.dumps(raw)[:80]}")
+    counts = f"{n_dh}" if n_j == n_dh else f"{n_dh} (the DH joints) or {n_j} (and the jaw)"
+    if not isinstance(raw, list) or len(raw) not in (n_dh, n_j):
+        got = f"{len(raw)} pairs" if isinstance(raw, list) else json.dumps(raw)[:80]
+        jaw = isinstance(raw, list) and n_j == n_dh and len(raw) == n_dh + 1
+        d.fail("joint_limits", f"expected {counts} pairs [qmin, qmax], got {got}"
+               + (" (a jaw pair, but has_gripper is false)" if jaw else ""))
+    if not all(isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p) for p in raw):
+        bad = next(i for i, p in enumerate(raw)
+                   if not (isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p)))
+        d.fail("joint_limits", f"pair {bad} is not [qmin, qmax] of two numbers: {json.dumps(raw[bad])[:80]}")
     limits = np.asarray(raw, dtype=float)
     if np.any(limits[:, 0] > limits[:, 1]):
         d.fail("joint_limits", "a pair has qmin > qmax")
