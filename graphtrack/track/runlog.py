@@ -10,6 +10,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
+from tqdm import tqdm
 
 from graphtrack.errors import FrameError
 from graphtrack.io.frame import Frame
@@ -20,8 +21,10 @@ STAGES = ("decode", "undistort", "detect", "observe", "estimate", "write", "vide
 
 
 def warn(message: str, quiet: bool) -> None:
+    """One line on stderr (none when ``quiet``), written past an open progress bar
+    (``tqdm.write``: a log file or pipe gets the line on its own, not glued to the bar's)."""
     if not quiet:
-        print(f"graphtrack: {message}", file=sys.stderr)
+        tqdm.write(f"graphtrack: {message}", file=sys.stderr)
 
 
 class SkipCounter(Counter):
