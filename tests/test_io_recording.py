@@ -163,6 +163,19 @@ def test_labels_and_real_robot_loader(tmp_path):
     assert len(ok_frames(items(rec))) == 8
 
 
+@pytest.mark.parametrize("first, from_one", [(1, True), (0, False)])
+def test_labels_numbered_from_one_are_named(tmp_path, first, from_one):
+    """labels.csv rows 1..n for a recording of frames 0..n-1: the one beyond the end is not
+    scored and the note asks whether they are numbered from 1 (each other label would be
+    scored against the next frame); rows 0..n: only the count."""
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(3))
+    (seq / "labels.csv").write_text("frame,u,v\n" + "".join(f"{k},10,20\n" for k in range(first, 4)))
+    got = [w for w in open_recording(seq, **NO_ROBOT).warnings if "labels.csv" in w]
+    assert len(got) == 1 and "1 labels of frames the recording does not have (it has 3 frames; first: frame 3)" in got[0]
+    assert ("numbered from 1?" in got[0]) is from_one
+
+
 def test_decode_image_encodings():
     ts = typestore()
     rng = np.random.default_rng(5)

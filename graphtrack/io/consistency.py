@@ -23,8 +23,11 @@ def consistency_notes(rec) -> list[str]:
     for name, labels in (("labels.csv", rec.labels), ("labels_right.csv", rec.labels_right)):
         beyond = sorted(k for k in (labels or {}) if k >= len(rec))
         if beyond:
+            from_one = min(labels) == 1 and beyond[-1] == len(rec)   # 1..n for frames 0..n-1
             notes.append(f"{rec.path / name}: {len(beyond)} labels of frames the recording does not have "
-                         f"(it has {len(rec)} frames; first: frame {beyond[0]}); they are not scored")
+                         f"(it has {len(rec)} frames; first: frame {beyond[0]}); they are not scored"
+                         + ("; numbered from 1? frames are numbered from 0, as in joints.csv, so each of the "
+                            "others is scored against the frame after its own" if from_one else ""))
     if rec.has_right_images and rec.calibration.right is None:
         notes.append(f"{rec.path}: right images but no K2, D2, R, T in camera_calibration.yaml; "
                      "tracking the left image only")
