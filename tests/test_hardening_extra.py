@@ -95,7 +95,7 @@ EXIT2 = [
     ("frames_folder_empty", "folder", unlink_all("frames"), (), r"frames: no images"),
     ("joints_csv_empty", "folder", write("joints.csv", ""), (), r"joints\.csv: header must be"),
     ("joints_csv_header_only", "folder", lambda r: edit_joints(r, lambda rows: rows[:1]), (),
-     r"frames: holds 12 images but joints\.csv has 0 rows"),
+     r"joints\.csv: no rows after the header"),
     ("labels_csv_a_folder", "folder", lambda r: (r / "labels.csv").unlink() or (r / "labels.csv").mkdir(), (),
      r"labels\.csv: a folder, not a file"),
     ("frames_numbered_from_1", "folder", renumber_from_1, (),

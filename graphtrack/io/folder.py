@@ -49,6 +49,8 @@ def read_joints_csv(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         out = _parse_joints_csv(read_text(path), path)
     except csv.Error as e:
         raise InputError(f"{path}: not a readable CSV file ({e})") from None
+    if not len(out[0]):
+        raise InputError(f"{path}: no rows after the header (one row per frame: frame, stamp, the joints, jaw)")
     step = median_interval(out[0])
     if step > MAX_FRAME_INTERVAL_S:
         raise InputError(f"{path}: the stamps are {step:.6g} apart (median); stamps are seconds, and frames "
