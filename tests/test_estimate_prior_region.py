@@ -38,19 +38,25 @@ def test_correction_is_the_median_perturbation():
     assert correction([], E0, 0.005, 0.035) == {}
 
 
+def _tracked(tmp_path, capsys, frames: int, seed: int, size: tuple) -> dict:
+    """metrics.json of the default track of a simulated structured recording whose
+    handeye.yaml is off by size = (m, deg)."""
+    from graphtrack.cli import main
+    from graphtrack.sim.simulate import simulate
+
+    rec = simulate(tmp_path / "rec", "structured", frames=frames, seed=seed, size=(270, 480), form="folder",
+                   progress=False, handeye_error=(size[0], math.radians(size[1])))
+    capsys.readouterr()
+    assert main(["track", str(rec), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    return json.loads((tmp_path / "run" / "metrics.json").read_text())
+
+
 @pytest.mark.parametrize("size,warned", [((0.025, 10.0), True), ((0.002, 1.0), False)])
 def test_a_run_far_from_its_calibration_names_handeye_sigma(size, warned, tmp_path, capsys):
     """A recording whose handeye.yaml is 25 mm / 10 deg off: the smoother's correction lies
     beyond the prior's 99 % region, metrics.json says so and the run warns, naming
     --handeye-sigma; 2 mm / 1 deg off: no warning."""
-    from graphtrack.cli import main
-    from graphtrack.sim.simulate import simulate
-
-    rec = simulate(tmp_path / "rec", "structured", frames=10, seed=8, size=(270, 480), form="folder",
-                   progress=False, handeye_error=(size[0], math.radians(size[1])))
-    capsys.readouterr()
-    assert main(["track", str(rec), "--out", str(tmp_path / "run"), "--quiet"]) == 0
-    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    m = _tracked(tmp_path, capsys, 10, 8, size)
     c = m["handeye_correction"]
     assert c["frames"] > 0 and (c["prior_distance"] > PRIOR_HINT) is warned
     assert any("--handeye-sigma" in line for line in m["recording_warnings"]) is warned
@@ -63,14 +69,7 @@ def test_a_run_that_never_reached_the_tool_says_so(size, warned, tmp_path, capsy
     (its correction 0, no prior-distance hint), explaining none of the frames it judges;
     metrics.json counts them and the run warns, naming --handeye-sigma. 2 mm / 1 deg off:
     every frame after the start-up is judged and explained, no such warning."""
-    from graphtrack.cli import main
-    from graphtrack.sim.simulate import simulate
-
-    rec = simulate(tmp_path / "rec", "structured", frames=14, seed=3, size=(270, 480), form="folder",
-                   progress=False, handeye_error=(size[0], math.radians(size[1])))
-    capsys.readouterr()
-    assert main(["track", str(rec), "--out", str(tmp_path / "run"), "--quiet"]) == 0
-    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    m = _tracked(tmp_path, capsys, 14, 3, size)
     r = m["estimator_report"]
     assert r["frames_judged"] == m["frames_with_detections"] - 1 == 13   # the start-up's frame is searched
     assert (r["frames_explained"] < 0.15 * r["frames_judged"]) is warned
