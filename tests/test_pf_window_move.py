@@ -2,7 +2,8 @@
 import numpy as np
 
 from graphtrack.estimate.particle_filter import ParticleFilter
-from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, window_mode
+import graphtrack.estimate.pf.window_move as window_move
+from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, WIDE_MARGIN, window_mode, window_target
 from graphtrack.io.frame import Frame
 from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
 
@@ -125,3 +126,57 @@ def test_nothing_scored_means_no_move():
     res = window_mode(lambda X: np.zeros(len(np.atleast_2d(X))), np.zeros(6), np.full((6, 6), np.nan),
                       np.full(6, 1e-3), np.full(6, 1e-2), np.random.default_rng(0))
     assert res.gain == -np.inf
+
+
+def _plateau(frames, floor, mode, width=1.5e-3):
+    """The window's summed log-likelihood of a likelihood at its outlier floor (``floor``
+    nats per frame, the same everywhere) except within ``width`` of ``mode`` in b, where it
+    rises to 0: far from the mode it is flat, no search along the cloud sees it."""
+    def loglik(X):
+        r = np.linalg.norm(np.atleast_2d(X)[:, :3] - mode[:3], axis=1) / width
+        return frames * np.maximum(floor, -0.5 * r ** 2)
+    return loglik
+
+
+SPREAD = np.array([6e-3] * 3 + [0.05] * 3)        # the search's prior spread (m, rad)
+CLOUD = np.diag(np.r_[np.full(3, 3e-4), np.full(3, 2e-3)] ** 2)
+FLOOR = np.r_[np.full(3, 1e-3), np.full(3, 7.5e-3)]
+
+
+def test_a_mode_beyond_the_clouds_reach_is_found_over_the_prior():
+    """The cloud at 0, the window's mode 12 mm away behind a flat floor of -6 nats per frame
+    over 8 frames: by hand the gain is 8 x 6 - 1/2 (12/6)^2 = 46 nats > 8 x WIDE_MARGIN = 40,
+    so the target is the mode (the search around the cloud finds nothing, the floor is flat)."""
+    mode = np.r_[12e-3, 0.0, 0.0, 0.0, 0.0, 0.0]
+    J = _plateau(8, -6.0, mode)
+    near = window_mode(J, np.zeros(6), CLOUD, FLOOR, SPREAD, np.random.default_rng(0))
+    assert not near.gain > MIN_GAIN
+    for seed in range(5):
+        x = window_target(J, 8, np.zeros(6), CLOUD, FLOOR, SPREAD, np.random.default_rng(seed))
+        assert x is not None and np.linalg.norm(x[:3] - mode[:3]) < 1e-3, seed
+
+
+def test_a_wide_mode_must_beat_the_margin_per_frame():
+    """The same mode behind a floor of -4 nats per frame: the gain, 8 x 4 - 2 = 30 nats, is
+    under 8 x WIDE_MARGIN: no target. And with the wide search off (WIDE_MARGIN None), not
+    even the clear mode above is taken."""
+    assert WIDE_MARGIN == 5.0
+    mode = np.r_[12e-3, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert window_target(_plateau(8, -4.0, mode), 8, np.zeros(6), CLOUD, FLOOR, SPREAD,
+                         np.random.default_rng(0)) is None
+    try:
+        window_move.WIDE_MARGIN = None
+        assert window_target(_plateau(8, -6.0, mode), 8, np.zeros(6), CLOUD, FLOOR, SPREAD,
+                             np.random.default_rng(0)) is None
+    finally:
+        window_move.WIDE_MARGIN = WIDE_MARGIN
+
+
+def test_a_mode_near_the_cloud_is_taken_at_the_small_gain():
+    """A quadratic mode 1 mm from the cloud with the gain 4 nats by hand (> MIN_GAIN, far
+    under 8 x WIDE_MARGIN): the search around the cloud takes it."""
+    mode = np.r_[1e-3, 0.0, 0.0, 0.0, 0.0, 0.0]
+    scale = np.r_[1e-3 / np.sqrt(8.0), np.full(5, 1.0)]       # J(0) = -1/2 (1 / (1 / sqrt 8))^2 = -4
+    x = window_target(quadratic(mode, scale), 8, np.zeros(6), CLOUD, FLOOR, np.full(6, 1e9),
+                      np.random.default_rng(0))
+    assert x is not None and abs(x[0] - 1e-3) < 0.2e-3

@@ -28,7 +28,7 @@ Estimate: b = sum w_n b_n, R the chordal L2 mean of R(w_n), E_t = [R b; 0 1] . E
 ``Estimate.std``/``cov``: the weighted covariance of x. With ``search`` the cloud is
 started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`);
 with ``window_move``, after the 8th and 16th frame it weighs since each start it is
-shifted whole to the mode of those frames, when that mode is clearly better
+shifted whole to the mode of those frames near it or, by 5 nats a frame, over the prior
 (:mod:`graphtrack.estimate.pf.window_move`).
 
 Defaults (the dVRK tracker's motion model, a wider initial spread, roughening 0.5)
@@ -48,7 +48,7 @@ from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.pf.disc_offsets import DiscOffsets
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
-from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, window_mode
+from graphtrack.estimate.pf.window_move import SCHEDULE, window_target
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                             systematic_resample)
@@ -341,10 +341,10 @@ class ParticleFilter:
         def loglik(X):
             return sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
 
-        res = window_mode(loglik, x_bar, cov, self.init_std / 4, prior, self._move_rng)
-        if not res.gain > MIN_GAIN or (self.search is not None and self.search.outside(res.x)):
+        x = window_target(loglik, len(frames), x_bar, cov, self.init_std / 4, prior, self._move_rng)
+        if x is None or (self.search is not None and self.search.outside(x)):
             return False          # not clearly better, or outside the prior gate the search keeps
-        self.x = self.x + (res.x - x_bar)
+        self.x = self.x + (x - x_bar)
         self.window_moves += 1
         return True
 

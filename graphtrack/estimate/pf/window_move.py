@@ -30,6 +30,16 @@ J(x*) - J(x_bar) > ``MIN_GAIN`` = 3 nats (the log posterior ratio of the two poi
 the search's prior gate, every particle is shifted by x* - x_bar: the cloud keeps its
 shape and weights, only its place changes. Nothing here reads anything but the
 frames the filter has already used.
+
+A cloud can also sit in the wrong valley: a start-up mode that fit its first frame,
+millimetres from the truth, with the truth's valley beyond the cloud's reach and the
+likelihood flat (at its outlier floor) in between, so neither resampling nor a search
+drawn along the cloud finds it. When the search around the cloud gains too little, a
+second one draws its first stage over the prior instead, N(x_bar, diag(s^2 + floor^2))
+(:func:`window_target`), and its mode is taken when it beats the mean by more than
+``WIDE_MARGIN`` = 5 nats per frame of the window: the smoother's window challenge's
+margin for a distinct mode (docs/decisions/window-challenge.md), far above what one
+frame's detector noise gives.
 """
 from __future__ import annotations
 
@@ -45,6 +55,9 @@ MIN_GAIN = 3.0
 SCHEDULE = (8, 16)
 #: cross-entropy stages of the move's search (docs/decisions/pf-window-move.md: 3 -> 6)
 STAGES = 6
+#: nats per window frame: the mode of the search over the prior must beat the cloud's mean
+#: by this much (module doc; None: no such search)
+WIDE_MARGIN: float | None = 5.0
 
 
 @dataclass
@@ -55,18 +68,35 @@ class WindowMode:
     gain: float
 
 
+def window_target(loglik, frames: int, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndarray,
+                  prior_spread: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
+    """Where the move shifts the cloud's mean (module doc), or None: the mode near the cloud
+    (:func:`window_mode`) when it gains more than MIN_GAIN; else (``WIDE_MARGIN`` not None)
+    the mode of a search whose first stage covers the prior when it gains more than
+    ``frames`` (the window's frames) x WIDE_MARGIN. Arguments as :func:`window_mode`'s."""
+    near = window_mode(loglik, x_bar, cloud_cov, floor, prior_spread, rng)
+    if near.gain > MIN_GAIN:
+        return near.x
+    if WIDE_MARGIN is None:
+        return None
+    spread = np.asarray(prior_spread, float)
+    wide = window_mode(loglik, x_bar, cloud_cov, floor, spread, rng, first_cov=np.diag(spread ** 2 + floor ** 2))
+    return wide.x if wide.gain > frames * WIDE_MARGIN else None
+
+
 def window_mode(loglik, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndarray,
                 prior_spread: np.ndarray, rng: np.random.Generator, n: int = 512, stages: int = STAGES,
-                elite: float = 0.03) -> WindowMode:
+                elite: float = 0.03, first_cov: np.ndarray | None = None) -> WindowMode:
     """The mode of J (module doc) near x_bar: loglik(x (m, 6)) -> (m,) the frames' summed
     log-likelihood; cloud_cov (6, 6): the cloud's covariance; floor (6,): the first stage's
     least spread per axis; prior_spread (6,): s. The search is
     :func:`graphtrack.estimate.startup.global_search` at one pixel sigma, the cloud's mean
-    its incumbent from the first stage."""
+    its incumbent from the first stage; ``first_cov``: the first stage's covariance instead
+    of 9 cloud_cov + diag(floor^2)."""
     x_bar = np.asarray(x_bar, float)
     prior_spread = np.asarray(prior_spread, float)
     cloud_cov, floor = np.asarray(cloud_cov, float), np.asarray(floor, float)
-    first = 9.0 * cloud_cov + np.diag(floor ** 2)    # positive definite for a finite cloud and floor > 0
+    first = 9.0 * cloud_cov + np.diag(floor ** 2) if first_cov is None else np.asarray(first_cov, float)
     if not (np.all(np.isfinite(first)) and np.all(np.isfinite(x_bar))):
         return WindowMode(x_bar, -np.inf)               # a degenerate cloud: no mode, no move
     sd = np.maximum(3.0 * np.sqrt(np.clip(np.diag(cloud_cov), 0.0, None)), floor)  # floors the elite's covariance
