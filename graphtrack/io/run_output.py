@@ -293,5 +293,5 @@ def unexplained_problem(result: dict, recording: str | Path) -> str | None:
             f"judged (a tracked tool explains most of them): the detected edges and markers lay away from the "
             f"tool it projects, so the images did not confirm the estimates; unless the tool was occluded for "
             f"most of the recording, handeye.yaml is off by more than the hand-eye prior allows for (track "
-            f"again with --handeye-sigma MM,DEG, e.g. 25,10; docs/decisions/handeye-sigma.md), or check "
-            f"camera_calibration.yaml (K1, D1) and robot.json's tool")
+            f"again with --handeye-sigma MM,DEG, e.g. 12,5 for about 25 mm / 10 deg off; "
+            f"docs/decisions/handeye-sigma.md), or check camera_calibration.yaml (K1, D1) and robot.json's tool")
