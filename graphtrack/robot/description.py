@@ -288,9 +288,9 @@ def _joint_limits(d: _Doc, raw, n_dh: int, n_j: int) -> np.ndarray | None:
         jaw = isinstance(raw, list) and n_j == n_dh and len(raw) == n_dh + 1
         d.fail("joint_limits", f"expected {counts} pairs [qmin, qmax], got {got}"
                + (" (a jaw pair, but has_gripper is false)" if jaw else ""))
-    if not all(isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p) for p in raw):
-        bad = next(i for i, p in enumerate(raw)
-                   if not (isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p)))
+    bad = next((i for i, p in enumerate(raw)
+                if not (isinstance(p, list) and len(p) == 2 and all(is_number(x) for x in p))), None)
+    if bad is not None:
         d.fail("joint_limits", f"pair {bad} is not [qmin, qmax] of two numbers: {json.dumps(raw[bad])[:80]}")
     limits = np.asarray(raw, dtype=float)
     if np.any(limits[:, 0] > limits[:, 1]):
