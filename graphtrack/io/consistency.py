@@ -16,7 +16,7 @@ def consistency_notes(rec) -> list[str]:
     labels of frames the recording does not have, right images without the right camera's
     calibration, a suspicious baseline, principal point or focal-length ratio."""
     notes = list(rec.calibration.notes)
-    if rec.has_jaw and not getattr(rec.robot, "has_gripper", True):
+    if rec.has_jaw and not rec.uses_jaw:
         notes.append(f"{rec.path}: the recording has jaw readings but {rec.path / 'robot.json'} has no "
                      "has_gripper: the jaw is ignored (a tool with jaws needs \"has_gripper\": true, or its tip "
                      "is placed as if they were closed)")
