@@ -167,3 +167,16 @@ def test_handeye_sigma_is_said_to_be_ignored_by_kinematics():
     assert any("--handeye-sigma" in line for line in unused_options(args))
     args = build_parser().parse_args(["track", "SEQ", "--out", "O", "--handeye-sigma", "12,5"])
     assert unused_options(args) == []
+
+
+@pytest.mark.parametrize("argv, turn", [([], True), (["--no-turn"], False)])
+def test_compare_no_turn_reaches_every_cell(argv, turn):
+    """compare --no-turn is a study option: each cell's detector keeps its input unturned,
+    and a study written before the option existed reads as turned."""
+    from graphtrack.study.cells import CELL_OPTION_DEFAULTS, Cell
+
+    study = study_options_from_args(build_parser().parse_args(["compare", "SEQ", "--out", "O", *argv]))
+    assert study.cell_options()["turn"] is turn
+    cell = Cell("r", "r", "smoother", "line-intensities", "o", study.cell_options())
+    assert cell.track_options().detection.turn is turn
+    assert CELL_OPTION_DEFAULTS["turn"] is True

@@ -1,6 +1,6 @@
 """The learned net's line heatmap on the true shaft edges against the edges' image angle.
 
-    python3 benchmarks/experiments/net_orientation.py [--recordings 6] [--turn]
+    python3 benchmarks/experiments/net_orientation.py [--recordings 6] [--turn] [--weights PT]
 
 Each frame (frame 20 of plain simulated recordings, seeds 810000 + k, both scenes; the
 net was not trained on them) is resized to the net's 1/4 scale, undistorted, padded by
@@ -74,13 +74,14 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--recordings", type=int, default=6, help="recordings per scene")
     p.add_argument("--turn", action="store_true", help="the detector's turned input in the blind zone")
+    p.add_argument("--weights", metavar="PT", help="learned-detector weights (default: the shipped ones)")
     args = p.parse_args(argv)
     from graphtrack.detect.learned import LearnedDetector
     from graphtrack.sim.simulate import Simulation
     from graphtrack.threads import limit_threads
 
     limit_threads(1)
-    det = LearnedDetector()
+    det = LearnedDetector(args.weights)
     rows = []
     for i in range(args.recordings):
         for scene in ("structured", "tissue"):

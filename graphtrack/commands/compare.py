@@ -6,7 +6,7 @@ import sys
 from graphtrack.commands.common import add_source_arguments, output_path, source_from_args
 from graphtrack.io.run_output import check_run_arguments, outside_recording
 from graphtrack.commands.track import (FORMATTER, add_detection_arguments, add_estimator_arguments,
-                                       estimator_options_from_args)
+                                       add_turn_argument, estimator_options_from_args)
 from graphtrack.detect.base import OBSERVATION_MODELS
 from graphtrack.detect.options import DetectionOptions
 from graphtrack.errors import InputError
@@ -36,7 +36,7 @@ def study_options_from_args(args) -> StudyOptions:
     views = "mono" if args.mono else (args.stereo or StudyOptions.views)
     detection = DetectionOptions(detector=args.detector, weights=args.weights, alpha=args.alpha,
                                  beta=args.beta, markers=not args.no_markers,
-                                 shaft_end=not args.no_shaft_end).check()
+                                 shaft_end=not args.no_shaft_end, turn=not args.no_turn).check()
     return StudyOptions(estimators=_list(args.estimators, tuple(ESTIMATORS), "estimators"),
                         observations=_list(args.observations, OBSERVATION_MODELS, "observations"),
                         detection=detection, estimation=estimator_options_from_args(args), seed=args.seed,
@@ -89,6 +89,7 @@ def add_parser(sub):
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     p.add_argument("--no-shaft-end", action="store_true",
                    help="do not observe where the shaft ends (robot.json's shaft_features[0].end)")
+    add_turn_argument(p)
     add_estimator_arguments(p)
     p.add_argument("--repeats", type=int, default=StudyOptions.repeats, metavar="N",
                    help="run each seed-dependent cell (the particle filter; the RANSAC -polar models) "

@@ -36,6 +36,13 @@ def add_detection_arguments(p, weights: bool = True) -> None:
     p.add_argument("--beta", type=float, default=DetectionOptions.beta, help="pixel-set heatmap threshold beta")
 
 
+def add_turn_argument(p) -> None:
+    """--no-turn (DetectionOptions.turn)."""
+    p.add_argument("--no-turn", action="store_true",
+                   help="--detector learned: never turn the net's input (it is turned by 45 deg where the "
+                        "predicted shaft lies near an image axis, which the shipped net does not see)")
+
+
 def add_estimator_arguments(p, particles: bool = True, smoother: bool = True) -> None:
     """--particles (pf), --lag and --smoother (fixed-lag smoother), --seed; the options a
     command does not expose keep EstimatorOptions' defaults in ``args`` (and --no-edge-bias,
@@ -83,9 +90,7 @@ def add_tracking_arguments(p, estimators=tuple(ESTIMATORS), default_estimator=Tr
     p.add_argument("--no-markers", action="store_true", help="do not use painted-marker features")
     p.add_argument("--no-shaft-end", action="store_true",
                    help="do not observe where the shaft ends (robot.json's shaft_features[0].end)")
-    p.add_argument("--no-turn", action="store_true",
-                   help="--detector learned: never turn the net's input (it is turned by 45 deg where the "
-                        "predicted shaft lies near an image axis, which the shipped net does not see)")
+    add_turn_argument(p)
     add_mono_argument(p)
     add_estimator_arguments(p, particles=smoother_options, smoother=smoother_options)
     p.add_argument("--no-edge-bias", action="store_true",

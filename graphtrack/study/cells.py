@@ -14,11 +14,11 @@ STUDY_VERSION = 1
 CELL_OPTIONS = ("detector", "weights", "max_frames", "particles", "lag", "smoother", "seed",
                 "alpha", "beta", "markers", "views", "shaft_end", "search", "edge_bias", "handeye_sigma",
                 "arm", "image_topic", "joint_topic", "jaw_topic", "max_joint_gap",
-                "right_image_topic")
+                "right_image_topic", "turn")
 #: the value of an option a study.json written before it existed holds
 CELL_OPTION_DEFAULTS = {"shaft_end": True, "search": True, "edge_bias": True, "handeye_sigma": None,
                         "arm": None, "image_topic": None, "joint_topic": None, "jaw_topic": None,
-                        "max_joint_gap": None, "right_image_topic": None}
+                        "max_joint_gap": None, "right_image_topic": None, "turn": True}
 #: the mono / stereo axis: stereo (both images where the recording has a right one),
 #: mono (left only, ``--mono``), both (every cell twice, the mono one keyed "-mono")
 VIEWS = ("stereo", "mono", "both")
@@ -56,7 +56,7 @@ class StudyOptions:
                 "shaft_end": d.shaft_end, "search": e.search, "edge_bias": e.edge_bias,
                 "handeye_sigma": None if e.handeye_sigma is None else [float(v) for v in e.handeye_sigma],
                 "arm": t.arm, "image_topic": t.image, "joint_topic": t.joint, "jaw_topic": t.jaw,
-                "max_joint_gap": t.joint_gap, "right_image_topic": t.right}
+                "max_joint_gap": t.joint_gap, "right_image_topic": t.right, "turn": d.turn}
 
 
 @dataclass
@@ -93,7 +93,8 @@ class Cell:
         return TrackOptions(
             estimator=self.estimator, observation=self.observation or OBSERVATION,
             detection=DetectionOptions(detector=o["detector"], weights=o["weights"], alpha=o["alpha"],
-                                       beta=o["beta"], markers=o["markers"], shaft_end=o["shaft_end"]),
+                                       beta=o["beta"], markers=o["markers"], shaft_end=o["shaft_end"],
+                                       turn=o["turn"]),
             estimation=EstimatorOptions(particles=o["particles"], seed=o["seed"], lag=o["lag"],
                                         smoother=o["smoother"], search=o["search"], edge_bias=o["edge_bias"],
                                         handeye_sigma=None if o.get("handeye_sigma") is None
