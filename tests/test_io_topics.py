@@ -74,6 +74,15 @@ def test_empty_topic_does_not_count():
                        TopicSelection(), "b.bag")
 
 
+@pytest.mark.parametrize("available", [{}, {"/stereo/left/image": ("sensor_msgs/msg/Image", 0),
+                                              "/PSM1/measured_js": ("sensor_msgs/msg/JointState", 0)}])
+def test_a_bag_without_messages_is_said_to_be_empty(available):
+    """Nothing to name: the message says the bag is empty instead of asking for a topic."""
+    with pytest.raises(InputError, match=r"^b\.bag: the bag holds no messages") as err:
+        resolve_topics(available, TopicSelection(image="/stereo/left/image"), "b.bag")
+    assert "--image-topic" not in str(err.value) and ("/PSM1/measured_js" in str(err.value)) == bool(available)
+
+
 @pytest.mark.parametrize("bad", [dict(arm="PSM4"), dict(arm="psm1"), dict(joint="PSM1/measured_js"),
                                  dict(image="")])
 def test_selection_refuses_bad_names(bad):

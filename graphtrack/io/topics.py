@@ -93,6 +93,10 @@ def resolve_topics(available: dict[str, tuple[str, int]], sel: TopicSelection, w
     ``where`` (the bag) and what to pass when the choice is missing or ambiguous.
     """
     present = {t for t, (_, n) in available.items() if n > 0}
+    if not present:   # no topic to name: say so instead of asking for one
+        listed = f" (its topics, all without messages: {', '.join(sorted(available))})" if available else ""
+        raise InputError(f"{where}: the bag holds no messages{listed}; a recording needs the left images and "
+                         "the arm's joint states (docs/sequence-format.md)")
     arm = sel.arm
     if arm is None:
         found = arms_in(present)
