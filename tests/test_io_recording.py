@@ -594,7 +594,8 @@ def test_folder_video_shorter_than_joints(tmp_path):
     with (seq / "joints.csv").open("a") as f:
         f.write("4,1700000000.0,0,0,0,0,0,0,0.1\n")
     out = items(open_recording(seq, **NO_ROBOT))
-    assert len(out) == 5 and out[4].reason == "corrupt_image" and "video.mp4" in str(out[4])
+    assert len(out) == 5 and out[4].reason == "video_ended" and "video.mp4" in str(out[4])
+    assert "frames 4-4 are skipped" in str(out[4])
 
 
 def test_a_joint_log_at_its_own_rate_is_told_to_be_resampled(tmp_path):

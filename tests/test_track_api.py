@@ -213,6 +213,18 @@ def test_a_one_frame_run_has_no_steady_rate():
     assert s["frame_ms_mean"] == 25.0 and s["fps_steady"] == 40.0
 
 
+def test_a_video_that_ended_warns_once(capsys):
+    """video_ended: the first message names every frame left without an image, so the
+    rest are counted without a line each."""
+    from graphtrack.track.runlog import SkipCounter
+
+    skipped = SkipCounter()
+    for k in range(15, 40):
+        skipped.skip(FrameError(k, "video_ended", f"video.mp4 ended before frame {k}"), quiet=False)
+    lines = capsys.readouterr().err.splitlines()
+    assert skipped["video_ended"] == 25 and len(lines) == 1 and "frame 15" in lines[0]
+
+
 def test_many_skips_of_one_reason_are_counted_not_each_listed(capsys):
     """A joints.csv with 40 rows past the last image warned 40 times; each reason now warns
     its first WARN_EACH frames, then once that the rest are counted."""

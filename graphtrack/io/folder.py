@@ -243,11 +243,14 @@ class FolderSource:
                     break
             for k in range(start, self.n_images):
                 ok, img = (False, None) if ended else cap.read()
-                if not ok:
-                    ended = True
-                    yield k, FrameError(k, "corrupt_image", f"{self.video.name} has no decodable frame {k}")
-                else:
+                if ok:
                     yield k, img
+                    continue
+                why = (f"{self.video.name} ended before frame {k}" if ended else
+                       f"{self.video.name} has no decodable frame from {k} on, and joints.csv has "
+                       f"{self.n_images} rows: frames {k}-{self.n_images - 1} are skipped")
+                ended = True
+                yield k, FrameError(k, "video_ended", why)
         finally:
             cap.release()
 

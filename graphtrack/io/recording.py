@@ -19,6 +19,7 @@ Per-frame problems are YIELDED (not raised) as
 
 - ``corrupt_image``: the image message / file / video frame does not decode;
 - ``missing_image``: a row of joints.csv whose image file is not in frames/;
+- ``video_ended``: a row of joints.csv past the last frame video.mp4 decodes;
 - ``image_size``: the image size differs from ``ImageSize`` in camera_calibration.yaml;
 - ``joint_count``: the joint reading does not hold the expected number of DH joints;
 - ``nan_joints``: a joint (or, when the recording has jaw readings, the jaw) is NaN/inf;

@@ -36,13 +36,19 @@ class SkipCounter(Counter):
 
     #: skips of one reason warned about one by one; the rest are counted, not listed
     WARN_EACH = 10
+    #: reasons whose first warning names every frame skipped for it (the rest are counted only)
+    WARN_ONCE = frozenset({"video_ended"})
 
     def skip(self, error: FrameError, quiet: bool) -> None:
         """Count a skipped frame, keep its reason's first message, warn unless quiet (each
-        of the first WARN_EACH of a reason, then once that the rest are only counted)."""
+        of the first WARN_EACH of a reason, then once that the rest are only counted; a
+        WARN_ONCE reason: its first only)."""
         self[error.reason] += 1
         self.examples.setdefault(error.reason, str(error))
-        if self[error.reason] <= self.WARN_EACH:
+        if error.reason in self.WARN_ONCE:
+            if self[error.reason] == 1:
+                warn(f"warning: skipping {error}", quiet)
+        elif self[error.reason] <= self.WARN_EACH:
             warn(f"warning: skipping {error}", quiet)
         elif self[error.reason] == self.WARN_EACH + 1:
             warn(f"warning: skipping frame {error.frame} and further '{error.reason}' frames: counted in "
