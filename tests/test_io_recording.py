@@ -637,6 +637,32 @@ def test_folder_bad_joints_header(tmp_path, header):
         open_recording(seq, **NO_ROBOT)
 
 
+def test_folder_joints_header_with_dvrk_names_in_any_order(tmp_path):
+    """A joints.csv exported with the dVRK's joint names: the columns are put in DH order."""
+    from graphtrack.io.joint_names import DVRK_PSM_JOINTS
+
+    seq = write_meta(tmp_path / "seq")
+    frames = make_frames(3)
+    write_folder(seq, frames)
+    rows = [r.split(",") for r in (seq / "joints.csv").read_text().splitlines()[1:]]
+    perm = [3, 0, 5, 1, 4, 2]   # file column c holds DH joint perm[c]
+    header = ["frame", "stamp", *(DVRK_PSM_JOINTS[j] for j in perm), "jaw"]
+    body = [[r[0], r[1], *(r[2 + j] for j in perm), r[8]] for r in rows]
+    (seq / "joints.csv").write_text("\n".join(",".join(r) for r in [header, *body]) + "\n")
+    read = [f.joints.tolist() for f in ok_frames(items(open_recording(seq, **NO_ROBOT)))]
+    assert read == [f.joints.tolist() for f in frames]
+
+
+def test_folder_joints_header_with_some_dvrk_names_says_which(tmp_path):
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(2))
+    lines = (seq / "joints.csv").read_text().splitlines()
+    header = "frame,stamp,outer_yaw,outer_pitch,outer_insertion,outer_roll,outer_wrist_pitch,q6,jaw"
+    (seq / "joints.csv").write_text("\n".join([header] + lines[1:]) + "\n")
+    with pytest.raises(InputError, match=r"give each of outer_yaw, .*outer_wrist_yaw once"):
+        open_recording(seq, **NO_ROBOT)
+
+
 @pytest.mark.parametrize("row,needle", [("5,1.0,0,0,0,0,0,0,0", "frame 5, expected 2"),
                                         ("2,1.0,0,0,0,0,0,0", "line 4 has 8 fields"),
                                         ("2,1.0,0,x,0,0,0,0,0", "line 4")])

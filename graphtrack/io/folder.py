@@ -3,7 +3,8 @@
 ::
 
     frames/000000.png, frames/000001.png, ...   (or video.mp4): the raw left images
-    joints.csv   header  frame,stamp,q1,...,qn,jaw   one row per frame
+    joints.csv   header  frame,stamp,q1,...,qn,jaw   one row per frame (or the dVRK PSM's
+                 joint names for q1..q6, any order)
     frames_right/000000.png, ...                  (stereo, optional): the raw right images
 
 ``frame`` is the 0-based frame number and must equal the row number; ``stamp``
@@ -26,6 +27,7 @@ import numpy as np
 from graphtrack.errors import FrameError, InputError, read_text
 from graphtrack.io.decode import read_image_file
 from graphtrack.io.frame import Frame
+from graphtrack.io.joint_names import DVRK_PSM_JOINTS
 from graphtrack.io.stamps import median_interval
 from graphtrack.io.video import open_video
 
@@ -81,14 +83,28 @@ def _csv_int(text: str, path: Path, line: int) -> int:
     return int(t)
 
 
+def _joint_columns(header: list[str], path: Path) -> np.ndarray | None:
+    """The joint columns of a joints.csv header: q1..qn in DH order (None), or the dVRK PSM's
+    joint names in any order (the indices that put them in DH order); InputError otherwise."""
+    n = len(header) - 3
+    names = header[2:-1]
+    if n >= 1 and header[:2] == ["frame", "stamp"] and header[-1] == "jaw":
+        if names == [f"q{i}" for i in range(1, n + 1)]:
+            return None
+        if sorted(names) == sorted(DVRK_PSM_JOINTS):
+            return np.array([names.index(j) for j in DVRK_PSM_JOINTS])
+    dvrk = [h for h in names if h in DVRK_PSM_JOINTS]
+    hint = (f"; with the dVRK's joint names, give each of {', '.join(DVRK_PSM_JOINTS)} once"
+            if dvrk else "")
+    raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw' (or the dVRK PSM's joint names for "
+                     f"q1..q6, in any order), found {','.join(header)!r}{hint}")
+
+
 def _parse_joints_csv(text: str, path: Path):
     reader = csv.reader(text.splitlines())
     header = [h.strip() for h in next(reader, [])]
     n = len(header) - 3
-    if (n < 1 or header[:2] != ["frame", "stamp"] or header[-1] != "jaw"
-            or header[2:-1] != [f"q{i}" for i in range(1, n + 1)]):
-        raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw', "
-                         f"found {','.join(header)!r}")
+    order = _joint_columns(header, path)
     stamps, joints, jaw, prev_line = [], [], [], 1
     for line, row in enumerate(reader, start=2):
         if not row or all(not c.strip() for c in row):
@@ -110,8 +126,8 @@ def _parse_joints_csv(text: str, path: Path):
         stamps.append(vals[0])
         joints.append(vals[1:-1])
         jaw.append(vals[-1])
-    return (np.array(stamps, dtype=float), np.array(joints, dtype=float).reshape(-1, n),
-            np.array(jaw, dtype=float))
+    joints = np.array(joints, dtype=float).reshape(-1, n)
+    return np.array(stamps, dtype=float), joints if order is None else joints[:, order], np.array(jaw, dtype=float)
 
 
 def _one_based(files: dict, n_rows: int) -> bool:
