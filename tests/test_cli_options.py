@@ -180,3 +180,6 @@ def test_compare_no_turn_reaches_every_cell(argv, turn):
     cell = Cell("r", "r", "smoother", "line-intensities", "o", study.cell_options())
     assert cell.track_options().detection.turn is turn
     assert CELL_OPTION_DEFAULTS["turn"] is True
+    canny = study_options_from_args(build_parser().parse_args(["compare", "SEQ", "--out", "O", "--detector",
+                                                               "canny", *argv]))
+    assert canny.cell_options()["turn"] is True   # only the learned net turns: a canny study is the same

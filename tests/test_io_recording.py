@@ -595,7 +595,20 @@ def test_folder_video_shorter_than_joints(tmp_path):
         f.write("4,1700000000.0,0,0,0,0,0,0,0.1\n")
     out = items(open_recording(seq, **NO_ROBOT))
     assert len(out) == 5 and out[4].reason == "video_ended" and "video.mp4" in str(out[4])
-    assert "frames 4-4 are skipped" in str(out[4])
+    assert "ends after 4 frames and joints.csv has 5 rows: frame 4 is skipped" in str(out[4])
+
+
+def test_folder_video_that_stops_decoding_says_so(tmp_path):
+    """A video whose container lists every row's frame but stops decoding at k is damaged,
+    not short: the message says so (the later frames are not read)."""
+    from graphtrack.io.folder import FolderSource
+
+    seq = write_meta(tmp_path / "seq")
+    write_folder(seq, make_frames(6), video=True)
+    src = FolderSource(seq)
+    assert src.video_frames == 6
+    assert src._ended(2) == ("video.mp4 stopped decoding at frame 2 of the 6 its container lists (damaged?): "
+                             "frames 2-5 are skipped")
 
 
 def test_a_joint_log_at_its_own_rate_is_told_to_be_resampled(tmp_path):
@@ -661,6 +674,11 @@ def test_folder_joints_header_with_some_dvrk_names_says_which(tmp_path):
     (seq / "joints.csv").write_text("\n".join([header] + lines[1:]) + "\n")
     with pytest.raises(InputError, match=r"give each of outer_yaw, .*outer_wrist_yaw once"):
         open_recording(seq, **NO_ROBOT)
+    six = "outer_yaw,outer_pitch,outer_insertion,outer_roll,outer_wrist_pitch,outer_wrist_yaw"
+    (seq / "joints.csv").write_text("\n".join([f"frame,stamp,{six},extra,jaw"] + lines[1:]) + "\n")
+    with pytest.raises(InputError, match=r"header must be") as err:   # every name once: no hint about them
+        open_recording(seq, **NO_ROBOT)
+    assert "give each" not in str(err.value)
 
 
 @pytest.mark.parametrize("row,needle", [("5,1.0,0,0,0,0,0,0,0", "frame 5, expected 2"),

@@ -95,7 +95,7 @@ def _joint_columns(header: list[str], path: Path) -> np.ndarray | None:
             return np.array([names.index(j) for j in DVRK_PSM_JOINTS])
     dvrk = [h for h in names if h in DVRK_PSM_JOINTS]
     hint = (f"; with the dVRK's joint names, give each of {', '.join(DVRK_PSM_JOINTS)} once"
-            if dvrk else "")
+            if dvrk and sorted(dvrk) != sorted(DVRK_PSM_JOINTS) else "")
     raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw' (or the dVRK PSM's joint names for "
                      f"q1..q6, in any order), found {','.join(header)!r}{hint}")
 
@@ -169,7 +169,7 @@ class FolderSource:
         self.n_columns = self._joints.shape[1]
         self.has_jaw = bool(np.any(np.isfinite(self._jaw)))
         frames_dir = self.path / "frames"
-        self.video = None
+        self.video, self.video_frames = None, 0   # video.mp4 and the frame count its container lists
         self._files: dict[int, Path] = {}
         right_dir = self.path / "frames_right"
         #: frame -> right image file (frames_right/, same names as frames/); None: mono
@@ -224,6 +224,7 @@ class FolderSource:
         cap = open_video(self.video)
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
         cap.release()
+        self.video_frames = n
         if n > self.n_images:
             raise InputError(f"{self.video}: holds {n} frames but joints.csv has {self.n_images} rows "
                              f"(first frame without a row: {self.n_images}); every frame needs its own row, "
@@ -262,13 +263,22 @@ class FolderSource:
                 if ok:
                     yield k, img
                     continue
-                why = (f"{self.video.name} ended before frame {k}" if ended else
-                       f"{self.video.name} has no decodable frame from {k} on, and joints.csv has "
-                       f"{self.n_images} rows: frames {k}-{self.n_images - 1} are skipped")
+                why = f"{self.video.name} ended before frame {k}" if ended else self._ended(k)
                 ended = True
                 yield k, FrameError(k, "video_ended", why)
         finally:
             cap.release()
+
+    def _ended(self, k: int) -> str:
+        """Why frame k and the rest have no image: the video ends (its container lists k
+        frames or fewer) or stopped decoding at k (damaged; the later frames are not read, so
+        that none pairs with another row)."""
+        rest = f"frame {k} is" if k == self.n_images - 1 else f"frames {k}-{self.n_images - 1} are"
+        listed = self.video_frames
+        if k < listed:
+            return (f"{self.video.name} stopped decoding at frame {k} of the {listed} its container lists "
+                    f"(damaged?): {rest} skipped")
+        return f"{self.video.name} ends after {k} frames and joints.csv has {self.n_images} rows: {rest} skipped"
 
     def _right(self, k: int):
         """frames_right/<k>: the image, or None (missing / not decodable: counted in right_skips)."""

@@ -56,7 +56,8 @@ class StudyOptions:
                 "shaft_end": d.shaft_end, "search": e.search, "edge_bias": e.edge_bias,
                 "handeye_sigma": None if e.handeye_sigma is None else [float(v) for v in e.handeye_sigma],
                 "arm": t.arm, "image_topic": t.image, "joint_topic": t.joint, "jaw_topic": t.jaw,
-                "max_joint_gap": t.joint_gap, "right_image_topic": t.right, "turn": d.turn}
+                "max_joint_gap": t.joint_gap, "right_image_topic": t.right,
+                "turn": d.turn or d.detector != "learned"}   # only the learned net turns its input
 
 
 @dataclass
