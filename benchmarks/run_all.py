@@ -113,7 +113,9 @@ def _flatten(d: dict, prefix: str = "") -> dict:
 
 
 def _run_of(results: dict, section: str) -> dict:
-    """Where and when a section was measured: its own ``_run``, else the file's (older results)."""
+    """Where and when a section was measured: its own ``_run``, else the file's (older results).
+    A target's figure re-run apart from its section names its own in the section's
+    ``_run_by_key`` ({key: {"machine", "date"}})."""
     run = results.get(section, {}).get("_run") or {}
     return {k: run.get(k, results.get(f"_{k}", "?")) for k in ("machine", "date", "pinning")}
 
@@ -134,8 +136,8 @@ def render(results: dict) -> str:
               "|---|---|---|---|" + ("---|" if mixed else "")]
     for section, key, what, target, op, unit in TARGETS:
         v = _flatten(results.get(section, {})).get(key)
-        where = f" {_run_of(results, section)['machine'].split(';')[0]}, {_run_of(results, section)['date']} |" \
-            if mixed else ""
+        run = {**_run_of(results, section), **results.get(section, {}).get("_run_by_key", {}).get(key, {})}
+        where = f" {run['machine'].split(';')[0]}, {run['date']} |" if mixed else ""
         if v is not None and op == ">=fps":  # the figure is ms per frame
             v, op = 1000.0 / v, ">="
         if v is None:
@@ -156,7 +158,8 @@ def render(results: dict) -> str:
         if mixed:
             lines += [f"Measured on {runs[section]['date']}: {runs[section]['machine']}.", ""]
         tables = res.get("tables", {})
-        scalars = _flatten({k: v for k, v in res.items() if k not in ("tables", "notes", "plots", "_run")})
+        scalars = _flatten({k: v for k, v in res.items()
+                            if k not in ("tables", "notes", "plots", "_run", "_run_by_key")})
         if scalars:
             lines += ["| figure | value |", "|---|---|"]
             lines += [f"| {k} | {_fmt(v)} |" for k, v in scalars.items()]

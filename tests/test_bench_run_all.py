@@ -48,3 +48,16 @@ def test_a_section_rerun_elsewhere_keeps_the_others_machine(tmp_path, monkeypatc
     pf = rows["PF predict+update, 1000 particles, ~500 px, 4 markers, shaft end"]
     assert pf.endswith("| 5 ms | **no** | Intel Xeon, " + stored["pf"]["_run"]["date"] + " |")
     assert "Measured on 2026-01-01: AMD EPYC; 2 logical CPUs." in md
+
+
+def test_a_target_rerun_apart_from_its_section_names_its_own_machine():
+    """_run_by_key: the figure's row in the targets table names where it was re-run; the
+    section's other targets keep the section's machine, and the key is not a figure."""
+    res = _results("AMD EPYC; 2 logical CPUs")
+    res["sim"]["_run"] = {"machine": "Intel Xeon; 2 logical CPUs", "date": "2026-01-02"}
+    res["sim"]["_run_by_key"] = {"tissue_fps": {"machine": "AMD EPYC; 2 logical CPUs", "date": "2026-01-03"}}
+    md = run_all.render(res)
+    rows = {line.split(" | ")[0].lstrip("| "): line for line in md.splitlines() if line.startswith("| ")}
+    assert rows["simulator, 540x960 structured, render + write"].endswith("| Intel Xeon, 2026-01-02 |")
+    assert rows["simulator, 540x960 tissue, render + write"].endswith("| AMD EPYC, 2026-01-03 |")
+    assert "_run_by_key" not in md
