@@ -2,6 +2,7 @@
 
 import math
 import numbers
+import re
 from pathlib import Path
 
 
@@ -52,13 +53,15 @@ def read_text(path) -> str:
         raise InputError(f"{path}: not UTF-8 text (byte {e.start}: {data[e.start:e.start + 1]!r})") from None
 
 
+#: a number with an exponent that YAML 1.1's float pattern misses (no point, or no sign)
+EXPONENT_FLOAT = re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$")
+
+
 def read_yaml(path):
     """The parsed YAML of a configuration file (InputError naming the file when it is
     not YAML), as OpenCV's FileStorage writes it too: its ``%YAML:1.0`` first line
     (not a YAML directive) is dropped and an ``!!opencv-matrix`` node reads as the
     plain mapping it is (rows, cols, dt, data)."""
-    import re
-
     import yaml
 
     class Loader(yaml.SafeLoader):
@@ -74,6 +77,9 @@ def read_yaml(path):
 
     Loader.add_constructor("tag:yaml.org,2002:opencv-matrix",
                            lambda loader, node: loader.construct_mapping(node, deep=True))
+    # YAML 1.1 reads 1e-3, 5e2 and 1.0e6 (an exponent without a point or a sign) as text; they
+    # are numbers in YAML 1.2 and to every calibration tool that writes them
+    Loader.add_implicit_resolver("tag:yaml.org,2002:float", EXPONENT_FLOAT, list("-+0123456789"))
     text = re.sub(r"^%YAML:1\.0[ \t]*\r?\n", "", read_text(path))
     try:
         return yaml.load(text, Loader=Loader)   # noqa: S506 - a SafeLoader with one more mapping tag
@@ -87,7 +93,6 @@ def read_json(path):
     the file when it is not JSON or an object holds one key twice (which JSON parsers
     resolve silently, the last one winning)."""
     import json
-    import re
 
     path = Path(path)
     text = re.sub(r'("(?:\\.|[^"\\])*")|//[^\n]*|/\*.*?\*/', lambda m: m.group(1) or "", read_text(path),

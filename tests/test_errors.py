@@ -55,3 +55,16 @@ def test_a_key_given_twice_is_refused_not_resolved_silently(tmp_path):
                                       ("3", False), (None, False)])
 def test_is_whole_takes_integers_of_python_and_numpy_never_bools(v, whole):
     assert is_whole(v) is whole
+
+
+def test_yaml_numbers_with_an_exponent_are_numbers(tmp_path):
+    """YAML 1.1 reads 1e-3 or 1.0e6 as text (no point, or no sign in the exponent); a
+    calibration written so is read as numbers, as Python's float() reads each."""
+    from graphtrack.errors import read_yaml
+
+    y = tmp_path / "camera_calibration.yaml"
+    values = ["1e-3", "5e2", "1.0e6", "-2E+3", "1.5e-7"]
+    y.write_text(f"D1: [{', '.join(values)}]\nK: '1e3'\nname: 1e3x\n")
+    doc = read_yaml(y)
+    assert doc["D1"] == [float(v) for v in values] and all(isinstance(v, float) for v in doc["D1"])
+    assert doc["K"] == "1e3" and doc["name"] == "1e3x"   # quoted, or not a number: text as before

@@ -212,6 +212,7 @@ def test_damaged_video_is_one_line(base, tmp_path):  # noqa: F811
     assert p.returncode == 2
     assert p.stderr.strip().splitlines() == [error_line(p.stderr)]
     assert "video.mp4: cannot open the video" in p.stderr
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())   # nothing to block a rerun
 
 
 @pytest.mark.parametrize("command", [["track", "--estimator", "smoother"], ["refine"]])

@@ -595,7 +595,7 @@ def test_folder_video_shorter_than_joints(tmp_path):
         f.write("4,1700000000.0,0,0,0,0,0,0,0.1\n")
     out = items(open_recording(seq, **NO_ROBOT))
     assert len(out) == 5 and out[4].reason == "video_ended" and "video.mp4" in str(out[4])
-    assert "ends after 4 frames and joints.csv has 5 rows: frame 4 is skipped" in str(out[4])
+    assert "ends after 4 frames and joints.csv has 5 rows: frame 4 has no image" in str(out[4])
 
 
 def test_folder_video_that_stops_decoding_says_so(tmp_path):
@@ -608,7 +608,7 @@ def test_folder_video_that_stops_decoding_says_so(tmp_path):
     src = FolderSource(seq)
     assert src.video_frames == 6
     assert src._ended(2) == ("video.mp4 stopped decoding at frame 2 of the 6 its container lists (damaged?): "
-                             "frames 2-5 are skipped")
+                             "frames 2-5 have no image")
 
 
 def test_a_joint_log_at_its_own_rate_is_told_to_be_resampled(tmp_path):
@@ -672,7 +672,7 @@ def test_folder_joints_header_with_some_dvrk_names_says_which(tmp_path):
     lines = (seq / "joints.csv").read_text().splitlines()
     header = "frame,stamp,outer_yaw,outer_pitch,outer_insertion,outer_roll,outer_wrist_pitch,q6,jaw"
     (seq / "joints.csv").write_text("\n".join([header] + lines[1:]) + "\n")
-    with pytest.raises(InputError, match=r"give each of outer_yaw, .*outer_wrist_yaw once"):
+    with pytest.raises(InputError, match=r"give each of the six once \(missing: outer_wrist_yaw\)"):
         open_recording(seq, **NO_ROBOT)
     six = "outer_yaw,outer_pitch,outer_insertion,outer_roll,outer_wrist_pitch,outer_wrist_yaw"
     (seq / "joints.csv").write_text("\n".join([f"frame,stamp,{six},extra,jaw"] + lines[1:]) + "\n")

@@ -93,11 +93,20 @@ def _joint_columns(header: list[str], path: Path) -> np.ndarray | None:
             return None
         if sorted(names) == sorted(DVRK_PSM_JOINTS):
             return np.array([names.index(j) for j in DVRK_PSM_JOINTS])
-    dvrk = [h for h in names if h in DVRK_PSM_JOINTS]
-    hint = (f"; with the dVRK's joint names, give each of {', '.join(DVRK_PSM_JOINTS)} once"
-            if dvrk and sorted(dvrk) != sorted(DVRK_PSM_JOINTS) else "")
     raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw' (or the dVRK PSM's joint names for "
-                     f"q1..q6, in any order), found {','.join(header)!r}{hint}")
+                     f"q1..q6, in any order), found {','.join(header)!r}{_names_hint(header)}")
+
+
+def _names_hint(header: list[str]) -> str:
+    """What a joints.csv header that uses the dVRK's joint names gets wrong ("" without them)."""
+    if not any(h in DVRK_PSM_JOINTS for h in header):
+        return ""
+    missing = [j for j in DVRK_PSM_JOINTS if j not in header]
+    twice = [j for j in DVRK_PSM_JOINTS if header.count(j) > 1]
+    wrong = ([f"missing: {', '.join(missing)}"] if missing else []) + ([f"twice: {', '.join(twice)}"] if twice else [])
+    if wrong:
+        return f"; with the dVRK's joint names give each of the six once ({'; '.join(wrong)})"
+    return "; the six joint names go between stamp and jaw, and jaw is the last column"
 
 
 def _parse_joints_csv(text: str, path: Path):
@@ -219,11 +228,15 @@ class FolderSource:
         return int(self.n_images)
 
     def _check_video_length(self) -> None:
-        """InputError when video.mp4 holds more frames than joints.csv has rows (the
-        container's frame count): as with frames/, frames are never re-paired."""
+        """InputError when video.mp4 does not open, or holds more frames than joints.csv has
+        rows (the container's frame count): as with frames/, frames are never re-paired."""
         cap = open_video(self.video)
-        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        opened = cap.isOpened()
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if opened else 0
         cap.release()
+        if not opened:   # here, before a run writes anything: not at its first frame
+            raise InputError(f"{self.video}: cannot open the video (damaged, cut short, or not a video FFmpeg "
+                             "decodes)")
         self.video_frames = n
         if n > self.n_images:
             raise InputError(f"{self.video}: holds {n} frames but joints.csv has {self.n_images} rows "
@@ -273,12 +286,12 @@ class FolderSource:
         """Why frame k and the rest have no image: the video ends (its container lists k
         frames or fewer) or stopped decoding at k (damaged; the later frames are not read, so
         that none pairs with another row)."""
-        rest = f"frame {k} is" if k == self.n_images - 1 else f"frames {k}-{self.n_images - 1} are"
+        rest = f"frame {k} has" if k == self.n_images - 1 else f"frames {k}-{self.n_images - 1} have"
         listed = self.video_frames
         if k < listed:
             return (f"{self.video.name} stopped decoding at frame {k} of the {listed} its container lists "
-                    f"(damaged?): {rest} skipped")
-        return f"{self.video.name} ends after {k} frames and joints.csv has {self.n_images} rows: {rest} skipped"
+                    f"(damaged?): {rest} no image")
+        return f"{self.video.name} ends after {k} frames and joints.csv has {self.n_images} rows: {rest} no image"
 
     def _right(self, k: int):
         """frames_right/<k>: the image, or None (missing / not decodable: counted in right_skips)."""
