@@ -144,7 +144,7 @@ def test_extra_exit2(case, base, tmp_path, capsys):  # noqa: F811
 def test_out_is_a_file(base, tmp_path, capsys):  # noqa: F811
     (tmp_path / "f").write_text("")
     code, err = track(base / "folder", tmp_path / "f", capsys)
-    assert code == 2 and re.search(r"f: cannot write the output folder", error_line(err))
+    assert code == 2 and re.search(r"f: is a file, not a folder \(the output folder\): name a folder", error_line(err))
 
 
 def test_stereo_right_images_of_another_size_are_counted_and_warned(stereo, tmp_path, capsys):

@@ -13,6 +13,8 @@ def writable_dir(path: str | Path, what: str = "the output folder") -> Path:
     Raises InputError ``"<path>: cannot write <what> (<reason>)"`` otherwise.
     """
     path = Path(path)
+    if path.exists() and not path.is_dir():   # mkdir would say "File exists", which reads as a clash
+        raise InputError(f"{path}: is a file, not a folder ({what}): name a folder")
     try:
         path.mkdir(parents=True, exist_ok=True)
         probe = path / ".graphtrack-write-test"
