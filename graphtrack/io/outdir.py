@@ -10,7 +10,8 @@ from graphtrack.errors import InputError
 def writable_dir(path: str | Path, what: str = "the output folder") -> Path:
     """Create ``path`` (with parents) and prove a file can be written in it.
 
-    Raises InputError ``"<path>: cannot write <what> (<reason>)"`` otherwise.
+    Raises InputError ``"<path>: cannot write <what> (<reason>)"`` otherwise, and
+    ``"<path>: is a file, not a folder (<what>): ..."`` for an existing file.
     """
     path = Path(path)
     if path.exists() and not path.is_dir():   # mkdir would say "File exists", which reads as a clash
