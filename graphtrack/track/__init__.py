@@ -26,6 +26,7 @@ from tqdm import tqdm
 
 from graphtrack.allocator import keep_freed_memory
 from graphtrack.errors import FrameError, InputError
+from graphtrack.estimate import NEEDS_SHAFT, estimator_class
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.estimate.prior_region import PRIOR_HINT, correction
 from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_metrics
@@ -103,6 +104,9 @@ def _observable(rec: Recording, ctx: TrackingContext, options: TrackOptions) -> 
     if ctx.robot.shaft_features:
         return []
     robot_json = rec.path / "robot.json"
+    if options.estimator in NEEDS_SHAFT:   # the estimator's own refusal, with the file's path
+        raise InputError(f"{robot_json}: no shaft_features: the {NEEDS_SHAFT[options.estimator]} needs the "
+                         "shaft's cylinder (its silhouette edges are what it observes)")
     if not ctx.robot.point_features or not options.detection.markers:
         why = "no point_features" if not ctx.robot.point_features else "its markers are off (--no-markers)"
         raise InputError(f"{robot_json}: no shaft_features and {why}: {options.estimator} has nothing in the "
@@ -167,8 +171,8 @@ def track(path: str | Path, out: str | Path, options: TrackOptions, video: bool 
     rec, ctx = _open(path, options, quiet, topics)
     check_truth(path)   # for evaluation only (never given to the estimator): refused before the run
     out = writable_dir(out)
+    notes = _observable(rec, ctx, options) if estimator_class(options.estimator).uses_observations else []
     pipe = Pipeline(ctx, options)
-    notes = _observable(rec, ctx, options) if pipe.needs_images else []
     for line in notes:
         warn(f"warning: {line}", quiet)
     grey = None   # the greyscale-frames test's verdict (_grey_markers), None until a frame decides
