@@ -34,10 +34,16 @@ def estimator_class(name: str) -> type:
     return getattr(importlib.import_module(module), cls)
 
 
+def require_shaft(name: str, robot, where="robot.json") -> None:
+    """InputError naming ``where`` (the robot description) when estimator ``name`` needs a
+    shaft feature (NEEDS_SHAFT) and ``robot`` has none."""
+    if name in NEEDS_SHAFT and not robot.shaft_features:
+        raise InputError(f"{where}: no shaft_features: the {NEEDS_SHAFT[name]} needs the shaft's "
+                         "cylinder (its silhouette edges are what it observes)")
+
+
 def make_estimator(name: str, ctx, **options):
     """Instantiate estimator ``name`` with the tracking context and its options."""
     cls = estimator_class(name)
-    if name in NEEDS_SHAFT and not ctx.robot.shaft_features:
-        raise InputError(f"robot.json has no shaft_features: the {NEEDS_SHAFT[name]} needs the shaft's "
-                         "cylinder (its silhouette edges are what it observes)")
+    require_shaft(name, ctx.robot)
     return cls(ctx, **options)

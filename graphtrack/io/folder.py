@@ -27,7 +27,7 @@ import numpy as np
 from graphtrack.errors import FrameError, InputError, read_text
 from graphtrack.io.decode import read_image_file
 from graphtrack.io.frame import Frame
-from graphtrack.io.joint_names import DVRK_PSM_JOINTS
+from graphtrack.io.joint_names import DVRK_PSM_JOINTS, missing_and_repeated, name_order
 from graphtrack.io.stamps import median_interval
 from graphtrack.io.video import open_video
 
@@ -92,7 +92,7 @@ def _joint_columns(header: list[str], path: Path) -> np.ndarray | None:
         if names == [f"q{i}" for i in range(1, n + 1)]:
             return None
         if sorted(names) == sorted(DVRK_PSM_JOINTS):
-            return np.array([names.index(j) for j in DVRK_PSM_JOINTS])
+            return name_order(names, str(path))   # None when already in DH order
     raise InputError(f"{path}: header must be 'frame,stamp,q1,...,qn,jaw' (or the dVRK PSM's joint names for "
                      f"q1..q6, in any order), found {','.join(header)!r}{_names_hint(header)}")
 
@@ -101,8 +101,7 @@ def _names_hint(header: list[str]) -> str:
     """What a joints.csv header that uses the dVRK's joint names gets wrong ("" without them)."""
     if not any(h in DVRK_PSM_JOINTS for h in header):
         return ""
-    missing = [j for j in DVRK_PSM_JOINTS if j not in header]
-    twice = [j for j in DVRK_PSM_JOINTS if header.count(j) > 1]
+    missing, twice = missing_and_repeated(header)
     wrong = ([f"missing: {', '.join(missing)}"] if missing else []) + ([f"twice: {', '.join(twice)}"] if twice else [])
     if wrong:
         return f"; with the dVRK's joint names give each of the six once ({'; '.join(wrong)})"

@@ -23,19 +23,25 @@ DVRK_PSM_JOINTS = ("outer_yaw", "outer_pitch", "outer_insertion", "outer_roll", 
                    "outer_wrist_yaw")
 
 
+def missing_and_repeated(names: Sequence[str]) -> tuple[list[str], list[str]]:
+    """The dVRK PSM joint names absent from ``names``, and those in it more than once (DH order)."""
+    names = [str(n) for n in names]
+    return ([n for n in DVRK_PSM_JOINTS if n not in names],
+            [n for n in DVRK_PSM_JOINTS if names.count(n) > 1])
+
+
 def name_order(names: Sequence[str], where: str) -> np.ndarray | None:
     """Indices that put a message's values in DH order (module doc); None: as given.
 
     ``where`` names the topic for the error of a partial or repeated set of the dVRK names."""
     names = [str(n) for n in names]
-    found = [n for n in DVRK_PSM_JOINTS if n in names]
-    if not found:
+    if not any(n in names for n in DVRK_PSM_JOINTS):
         return None
-    repeated = sorted({n for n in found if names.count(n) > 1})
-    if repeated or len(found) < len(DVRK_PSM_JOINTS):
+    missing, repeated = missing_and_repeated(names)
+    if repeated or missing:
         why = (f"names {', '.join(repeated)} more than once (two arms on one topic?)" if repeated else
-               f"holds {len(found)} of the dVRK PSM's {len(DVRK_PSM_JOINTS)} joint names "
-               f"(missing {', '.join(n for n in DVRK_PSM_JOINTS if n not in names)}; another arm's topic?)")
+               f"holds {len(DVRK_PSM_JOINTS) - len(missing)} of the dVRK PSM's {len(DVRK_PSM_JOINTS)} joint "
+               f"names (missing {', '.join(missing)}; another arm's topic?)")
         raise InputError(f"{where}: a joint message {why}: its values cannot be put in the PSM's DH order "
                          f"({', '.join(DVRK_PSM_JOINTS)}); name the PSM's joint topic with --joint-topic")
     first = [names.index(n) for n in DVRK_PSM_JOINTS]

@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from graphtrack.allocator import keep_freed_memory
 from graphtrack.errors import FrameError, InputError
-from graphtrack.estimate import NEEDS_SHAFT, estimator_class
+from graphtrack.estimate import estimator_class, require_shaft
 from graphtrack.estimate.base import STD_COLUMNS, Estimate
 from graphtrack.estimate.prior_region import PRIOR_HINT, correction
 from graphtrack.eval.metrics import check_truth, evaluate_against_truth, tip_metrics
@@ -104,9 +104,7 @@ def _observable(rec: Recording, ctx: TrackingContext, options: TrackOptions) -> 
     if ctx.robot.shaft_features:
         return []
     robot_json = rec.path / "robot.json"
-    if options.estimator in NEEDS_SHAFT:   # the estimator's own refusal, with the file's path
-        raise InputError(f"{robot_json}: no shaft_features: the {NEEDS_SHAFT[options.estimator]} needs the "
-                         "shaft's cylinder (its silhouette edges are what it observes)")
+    require_shaft(options.estimator, ctx.robot, robot_json)   # the estimator's own refusal, with the path
     if not ctx.robot.point_features or not options.detection.markers:
         why = "no point_features" if not ctx.robot.point_features else "its markers are off (--no-markers)"
         raise InputError(f"{robot_json}: no shaft_features and {why}: {options.estimator} has nothing in the "
