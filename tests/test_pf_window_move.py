@@ -1,9 +1,11 @@
 """The particle filter's window move (graphtrack/estimate/pf/window_move.py)."""
+from dataclasses import replace
+
 import numpy as np
 
 from graphtrack.estimate.particle_filter import ParticleFilter
 import graphtrack.estimate.pf.window_move as window_move
-from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, WIDE_MARGIN, window_mode, window_target
+from graphtrack.estimate.pf.window_move import MIN_GAIN, SCHEDULE, WIDE_MARGIN, window_mode, move_target
 from graphtrack.io.frame import Frame
 from graphtrack.sim.synthetic import joint_trajectory, make_scene, observe
 
@@ -152,7 +154,7 @@ def test_a_mode_beyond_the_clouds_reach_is_found_over_the_prior():
     near = window_mode(J, np.zeros(6), CLOUD, FLOOR, SPREAD, np.random.default_rng(0))
     assert not near.gain > MIN_GAIN
     for seed in range(5):
-        x = window_target(J, 8, np.zeros(6), CLOUD, FLOOR, SPREAD, np.random.default_rng(seed))
+        x = move_target(J, 8, np.zeros(6), CLOUD, FLOOR, SPREAD, np.random.default_rng(seed)).x
         assert x is not None and np.linalg.norm(x[:3] - mode[:3]) < 1e-3, seed
 
 
@@ -162,12 +164,12 @@ def test_a_wide_mode_must_beat_the_margin_per_frame():
     even the clear mode above is taken."""
     assert WIDE_MARGIN == 5.0
     mode = np.r_[12e-3, 0.0, 0.0, 0.0, 0.0, 0.0]
-    assert window_target(_plateau(8, -4.0, mode), 8, np.zeros(6), CLOUD, FLOOR, SPREAD,
-                         np.random.default_rng(0)) is None
+    assert move_target(_plateau(8, -4.0, mode), 8, np.zeros(6), CLOUD, FLOOR, SPREAD,
+                         np.random.default_rng(0)).x is None
     try:
         window_move.WIDE_MARGIN = None
-        assert window_target(_plateau(8, -6.0, mode), 8, np.zeros(6), CLOUD, FLOOR, SPREAD,
-                             np.random.default_rng(0)) is None
+        assert move_target(_plateau(8, -6.0, mode), 8, np.zeros(6), CLOUD, FLOOR, SPREAD,
+                             np.random.default_rng(0)).x is None
     finally:
         window_move.WIDE_MARGIN = WIDE_MARGIN
 
@@ -177,6 +179,67 @@ def test_a_mode_near_the_cloud_is_taken_at_the_small_gain():
     under 8 x WIDE_MARGIN): the search around the cloud takes it."""
     mode = np.r_[1e-3, 0.0, 0.0, 0.0, 0.0, 0.0]
     scale = np.r_[1e-3 / np.sqrt(8.0), np.full(5, 1.0)]       # J(0) = -1/2 (1 / (1 / sqrt 8))^2 = -4
-    x = window_target(quadratic(mode, scale), 8, np.zeros(6), CLOUD, FLOOR, np.full(6, 1e9),
-                      np.random.default_rng(0))
+    x = move_target(quadratic(mode, scale), 8, np.zeros(6), CLOUD, FLOOR, np.full(6, 1e9),
+                      np.random.default_rng(0)).x
     assert x is not None and abs(x[0] - 1e-3) < 0.2e-3
+
+
+def test_the_width_offset_is_taken_only_when_it_clearly_explains_the_window():
+    """width_target: a 7-D quadratic (pose, width offset w px) whose mode has w = 2 px is
+    found with w's prior N(0, WIDTH_SIGMA^2), the gain computed by hand; a mode at w = 0.3 px
+    gains less than WIDTH_MARGIN over the pose alone: None."""
+    scale = np.r_[np.full(6, 1e-3), 0.2]
+    flat = np.r_[np.full(6, 1e9)]
+    cloud = np.diag(np.full(6, 1e-4) ** 2)
+    s2 = window_move.WIDTH_SIGMA ** 2
+    for seed in range(3):
+        x = window_move.width_target(quadratic(np.r_[np.zeros(6), 2.0], scale), np.zeros(6), 0.0, cloud,
+                                     np.full(6, 1e-3), flat, np.random.default_rng(seed), gain=0.0)
+        w = 2.0 * (1 / 0.04) / (1 / 0.04 + 1 / s2)                       # the posterior mode in w
+        assert x is not None and abs(x[6] - w) < 0.02 and np.abs(x[:6]).max() < 2e-4
+    J = quadratic(np.r_[np.zeros(6), 0.3], scale)
+    gain_by_hand = -0.5 * (0.3 / 0.2) ** 2 * (1 - 1 / (1 + 0.04 / s2)) + 0.5 * (0.3 / 0.2) ** 2
+    assert gain_by_hand < window_move.WIDTH_MARGIN
+    assert window_move.width_target(J, np.zeros(6), 0.0, cloud, np.full(6, 1e-3), flat,
+                                    np.random.default_rng(0), gain=0.0) is None
+    # a clear width mode that the pose alone nearly matches is not taken either
+    assert window_move.width_target(quadratic(np.r_[np.zeros(6), 2.0], scale), np.zeros(6), 0.0, cloud,
+                                    np.full(6, 1e-3), flat, np.random.default_rng(0), gain=48.0) is None
+
+
+def _inward(obs, px):
+    """The observation with each edge's pixel set moved ``px`` towards the other set (a
+    detector that finds both edges inside the limbs)."""
+    sets = [np.asarray(p, float) for p in obs.pixels]
+    c = [s.mean(axis=0) for s in sets]
+    moved = []
+    for i, s in enumerate(sets):
+        d = s[-1] - s[0]
+        n = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+        n = n if n @ (c[1 - i] - c[i]) > 0 else -n
+        moved.append(s + px * n)
+    return replace(obs, pixels=moved)
+
+
+def test_edges_found_inside_the_limbs_on_every_frame_set_the_width_offset():
+    """Edges 2 px inside the limbs on every frame: the move takes the joint mode with the
+    width offset (about 2 px) and the filter ends nearer the true E than without it; on the
+    same frames unmoved, the width stays 0 (test_no_move_without_a_clear_gain's frames)."""
+    rng = np.random.default_rng(3)
+    frames = [(fr, _inward(obs, 2.0)) for fr, obs in _frames(SCENE.true_E(np.zeros(6)), SCHEDULE[-1], rng)]
+    err = {}
+    for on in (True, False):
+        pf = ParticleFilter(SCENE.ctx, particles=300, seed=0, search=False, init_std_b=1e-3, init_std_w=5e-3,
+                            edge_width=on)
+        for fr, obs in frames:
+            est = pf.step(fr, obs)
+        err[on] = np.linalg.norm(est.E[:3, 3] - SCENE.true_E(np.zeros(6))[:3, 3])
+        if on:
+            assert 1.0 < pf.width < 2.7      # 2 px, shrunk by its prior (1.5 px): 1.5 here
+        else:
+            assert pf.width == 0.0
+    assert err[True] < 0.5 * err[False]
+    pf = ParticleFilter(SCENE.ctx, particles=300, seed=0, search=False, init_std_b=1e-3, init_std_w=5e-3)
+    for fr, obs in _frames(SCENE.true_E(np.zeros(6)), SCHEDULE[-1], np.random.default_rng(3)):
+        pf.step(fr, obs)
+    assert pf.width == 0.0

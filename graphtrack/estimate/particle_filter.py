@@ -28,8 +28,10 @@ Estimate: b = sum w_n b_n, R the chordal L2 mean of R(w_n), E_t = [R b; 0 1] . E
 ``Estimate.std``/``cov``: the weighted covariance of x. With ``search`` the cloud is
 started and re-initialised from the global search (:mod:`graphtrack.estimate.reinit`);
 with ``window_move``, after the 8th and 16th frame it weighs since each start it is
-shifted whole to the mode of those frames near it or, by 5 nats a frame, over the prior
-(:mod:`graphtrack.estimate.pf.window_move`).
+shifted whole to the mode of those frames near it or, by 5 nats a frame, over the prior,
+and with ``edge_width`` the same move sets the detected edges' width offset w (px; every
+hypothesis's limb lines moved w towards each other) when the frames' joint mode in (x, w)
+beats the pose's alone by 3 nats (:mod:`graphtrack.estimate.pf.window_move`).
 
 Defaults (the dVRK tracker's motion model, a wider initial spread, roughening 0.5)
 and their measurements: docs/decisions/pf-initial-spread-and-roughening.md,
@@ -48,10 +50,11 @@ from graphtrack.io.context import TrackingContext
 from graphtrack.estimate.gating import marker_gate
 from graphtrack.estimate.pf.disc_offsets import DiscOffsets
 from graphtrack.estimate.pf.projection import Hypotheses, frame_geometry, project
-from graphtrack.estimate.pf.window_move import SCHEDULE, window_target
+from graphtrack.estimate.pf.window_move import SCHEDULE, width_target, move_target
 from graphtrack.estimate.reinit import SearchInit
-from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
+from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights, shrink_and_jitter,
                                             systematic_resample)
+from graphtrack.geometry.lines import narrowed
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw, project_to_so3, so3_exp_batch
 from graphtrack.robot.features import base_features
 
@@ -78,7 +81,7 @@ class ParticleFilter:
     the CLI's ``--no-search``, turns both off); marker_discs: move each painted disc's
     detection to its centre's projection before scoring it as a point
     (:mod:`graphtrack.estimate.pf.disc_offsets`; off: the paper's point markers as
-    detected).
+    detected); edge_width: the window move may set the edges' width offset (off: 0 px).
     Each Observation carries its own ``model``, which is what is scored.
     """
 
@@ -107,7 +110,7 @@ class ParticleFilter:
                  search: bool = SEARCH, search_std_b: float = SEARCH_STD_B, search_std_w: float = SEARCH_STD_W,
                  search_hypotheses: int = 2048, reinit_gap: int = 30,
                  marker_gate_follows_covariance: bool = False, window_move: bool = True,
-                 marker_discs: bool = True):
+                 marker_discs: bool = True, edge_width: bool = True):
         if int(particles) < 1:
             raise ValueError("particles must be >= 1")
         self.ctx = ctx
@@ -120,6 +123,8 @@ class ParticleFilter:
         self.window_move = bool(window_move)       # pf/window_move.py
         self._move_rng = np.random.default_rng([int(seed), 1])   # its own draws: the cloud's stay as they were
         self.window_moves = 0
+        self.edge_width = bool(edge_width) and self.window_move
+        self.width = 0.0
         self.discs = DiscOffsets(ctx.robot) if marker_discs and markers else None   # pf/disc_offsets.py
         self.motion_std = np.array([motion_std_b] * 3 + [motion_std_w] * 3, dtype=float)
         self.init_std = np.array([init_std_b] * 3 + [init_std_w] * 3, dtype=float)
@@ -146,14 +151,9 @@ class ParticleFilter:
         self.search = None
         if search:
             self.search = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, gate_scale, markers,
-                                     seed=seed, n=search_hypotheses, gamma_rho=gamma_rho,
-                                     gamma_theta=gamma_theta, use_edge_ids=use_edge_ids,
-                                     pixel_sigma=pixel_sigma, pixel_outlier_sigmas=pixel_outlier_sigmas, pixel_weight=pixel_weight,
-                                     marker_gamma=marker_gamma, marker_gate=marker_gate,
-                                     pixel_effective_count=pixel_effective_count, band_weight=band_weight,
-                                     marker_loss=marker_loss,
-                                     marker_sigma=marker_sigma, marker_huber_k=marker_huber_k,
-                                     motion_cov=np.diag(self.motion_std ** 2))
+                                     seed=seed, n=search_hypotheses, marker_gamma=marker_gamma, marker_gate=marker_gate,
+                                     marker_loss=marker_loss, marker_sigma=marker_sigma, marker_huber_k=marker_huber_k,
+                                     motion_cov=np.diag(self.motion_std ** 2), **self.shaft_options)
         self.reset()
 
     # -- state ------------------------------------------------------------------------
@@ -208,11 +208,8 @@ class ParticleFilter:
         return project(self._frame_geometry(q), self.K, x)
 
     def hypotheses(self, q: np.ndarray, x: np.ndarray | None = None) -> dict:
-        """Project the shaft and markers for every particle (or for states x (n, 6)).
-
-        Returns rho, theta (n, 2) px/rad, valid (n,), markers (n, M, 2) px,
-        visible (n, M) bool, R (n, 3, 3).
-        """
+        """The shaft and markers of every particle (or of states x (n, 6)) projected: rho, theta
+        (n, 2) px/rad, valid (n,), markers (n, M, 2) px, visible (n, M) bool, R (n, 3, 3)."""
         h = self._project(q, x)
         return dict(rho=h.rho.T, theta=h.theta.T, valid=h.valid,
                     markers=np.stack([h.u.T, h.v.T], -1), visible=h.visible.T,
@@ -226,26 +223,28 @@ class ParticleFilter:
 
     # -- the filter step --------------------------------------------------------------
     def log_likelihood(self, q: np.ndarray, observation, x: np.ndarray | None = None,
-                       right=None) -> np.ndarray:
+                       right=None, width=None) -> np.ndarray:
         """log P(z | E(x_n)) (shaft model + markers) for every particle (or states x);
         with the right image's observation ``right`` (stereo context) the sum of both
-        images' terms (:mod:`graphtrack.estimate.stereo`)."""
+        images' terms (:mod:`graphtrack.estimate.stereo`); ``width`` (px, scalar or per state):
+        the edges' width offset instead of the filter's own (both images share it)."""
         h = self._project(q, x)
         index = None if x is None else 0     # a batch of hypotheses: pair markers at its first
-        return self._loglik(h, observation, index=index) + self._loglik_right(q, x, h, right, index)
+        return self._loglik(h, observation, index=index, width=width) + \
+            self._loglik_right(q, x, h, right, index, width)
 
-    def _loglik_right(self, q, x, h: Hypotheses, right, index: int | None = None) -> np.ndarray | float:
+    def _loglik_right(self, q, x, h: Hypotheses, right, index: int | None = None, width=None) -> np.ndarray | float:
         """The right image's term log P(z_right | right_T_left . E(x_n)), 0 without one."""
         if right is None or not self.ctx.stereo or not self._informative(right):
             return 0.0
-        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right, index)
+        return self._loglik(self._project(q, x, right=True, R=h.R), right, self._buffers_right, index, width)
 
     def _informative(self, observation) -> bool:
         return observation is not None and (observation.has_shaft
                                             or (self.use_markers and len(observation.markers) > 0))
 
     def _loglik(self, h: Hypotheses, observation, buffers: dict | None = None,
-                index: int | None = None) -> np.ndarray:
+                index: int | None = None, width=None) -> np.ndarray:
         """log P(z | E) of projected hypotheses h; ``index``: the hypothesis whose marker
         pairing breaks ties (None: the cloud's best particle when h is the cloud)."""
         n = len(h.valid)
@@ -253,7 +252,9 @@ class ParticleFilter:
         if observation is None:
             return ll
         if observation.has_shaft:
-            ll += om.shaft_loglik(observation, h.rho.T, lambda: h.theta.T, h.valid,
+            width = self.width if width is None else width
+            rho = narrowed(h.rho.T, h.cos.T, h.sin.T, width) if np.any(width) else h.rho.T
+            ll += om.shaft_loglik(observation, rho, lambda: h.theta.T, h.valid,
                                   _buffers=self._buffers if buffers is None else buffers, cos_sin=(h.cos.T, h.sin.T),
                                   **self.shaft_options)
         if self.use_markers and len(observation.markers):
@@ -339,12 +340,20 @@ class ParticleFilter:
         frames = list(self._window)
 
         def loglik(X):
-            return sum(self.log_likelihood(q, o, X, r) for q, o, r in frames)
+            w = X[:, 6] if X.shape[1] > 6 else None
+            return sum(self.log_likelihood(q, o, X[:, :6], r, w) for q, o, r in frames)
 
-        x = window_target(loglik, len(frames), x_bar, cov, self.init_std / 4, prior, self._move_rng)
+        floor = self.init_std / 4
+        found = move_target(loglik, len(frames), x_bar, cov, floor, prior, self._move_rng)
+        x, width = found.x, self.width
+        if self.edge_width:
+            joint = width_target(loglik, x_bar, self.width, cov, floor, prior, self._move_rng, found.gain)
+            if joint is not None:
+                x, width = joint[:6], float(joint[6])
         if x is None or (self.search is not None and self.search.outside(x)):
             return False          # not clearly better, or outside the prior gate the search keeps
         self.x = self.x + (x - x_bar)
+        self.width = width
         self.window_moves += 1
         return True
 
@@ -375,21 +384,12 @@ class ParticleFilter:
     def resample(self, w: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
         """Systematic resampling, then roughening by kernel shrinkage (module doc)."""
         w = np.exp(self.logw) if w is None else w
-        idx = systematic_resample(w, self.rng)
         mean = w @ self.x
-        self.x = self.x[idx]
+        self.x = self.x[systematic_resample(w, self.rng)]
         self.logw = np.full(self.N, -np.log(self.N))
         if self.roughening > 0 and cov is not None:
-            a = np.sqrt(max(1.0 - self.roughening ** 2, 0.0))
-            self.x = a * self.x + (1.0 - a) * mean
-            C = self.roughening ** 2 * cov
-            # cap the jitter at the prior spread per axis: along directions the data never
-            # constrain, a cloud wider than the prior keeps only a^2 of its variance there
-            s = np.sqrt(np.maximum(np.diag(C), 1e-300))
-            D = np.minimum(1.0, self.init_std / s)
-            C = D[:, None] * C * D[None, :] + np.diag((1e-3 * self.motion_std) ** 2)
-            L = np.linalg.cholesky(0.5 * (C + C.T))
-            self.x += self.rng.standard_normal((self.N, 6)) @ L.T
+            self.x = shrink_and_jitter(self.x, mean, cov, self.roughening, self.init_std, 1e-3 * self.motion_std,
+                                       self.rng)
 
     def finish(self):
         return None

@@ -10,6 +10,10 @@ Probabilistic Robotics, Table 4.4): one uniform u ~ U[0, 1/N) and the N
 pointers u + k/N, k = 0..N-1, walk the cumulative weights. Particle i is
 copied n_i times with |n_i - N w_i| < 1, so the weighted distribution is
 preserved with the least resampling noise of the standard schemes.
+
+Roughening by kernel shrinkage (Liu & West 2001), after resampling: with
+bandwidth h, x_n <- a x_n + (1 - a) x_bar + N(0, h^2 Sigma), a = sqrt(1 - h^2),
+which keeps the cloud's mean x_bar and covariance Sigma (a^2 + h^2 = 1).
 """
 from __future__ import annotations
 
@@ -58,3 +62,18 @@ def systematic_resample(w: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     c[-1] = 1.0  # guard against round-off leaving the last pointer unmatched
     pointers = (rng.random() + np.arange(n)) / n
     return np.minimum(np.searchsorted(c, pointers, side="right"), n - 1)
+
+
+def shrink_and_jitter(x: np.ndarray, mean: np.ndarray, cov: np.ndarray, h: float, cap: np.ndarray,
+                      floor: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Resampled particles x (N, d) roughened by kernel shrinkage (module doc) towards
+    ``mean`` (d,) with jitter N(0, h^2 cov): the jitter's std capped per axis at ``cap``
+    (d,) (along directions the data never constrain a cloud wider than the prior keeps
+    only a^2 of its variance there), plus N(0, diag(floor^2)) so that it is never singular."""
+    a = np.sqrt(max(1.0 - h ** 2, 0.0))
+    x = a * x + (1.0 - a) * mean
+    C = h ** 2 * np.asarray(cov, float)
+    D = np.minimum(1.0, cap / np.sqrt(np.maximum(np.diag(C), 1e-300)))
+    C = D[:, None] * C * D[None, :] + np.diag(np.asarray(floor, float) ** 2)
+    L = np.linalg.cholesky(0.5 * (C + C.T))
+    return x + rng.standard_normal(x.shape) @ L.T

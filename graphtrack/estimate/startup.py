@@ -153,12 +153,13 @@ def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.
                   incumbent: np.ndarray | None = None, first_cov: np.ndarray | None = None) -> SearchResult:
     """Annealed cross-entropy search (module doc).
 
-    score(x, sigma) -> (n,) log-likelihood of hypotheses x (n, 6) at pixel sigma;
-    centre (6,), spread (6,): the first stage draws from N(centre, diag(spread^2));
+    score(x, sigma) -> (n,) log-likelihood of hypotheses x (n, d) at pixel sigma (d = 6:
+    the pose (b, w); more: further parameters the score reads, as the particle filter's
+    width offset); centre (d,), spread (d,): the first stage draws from N(centre, diag(spread^2));
     the prior term of J is N(prior_centre, diag(prior_spread^2)) (defaults: centre and
     spread; the re-initialisations search around the current estimate under the
     hand-eye prior); incumbent: a hypothesis scored in the first stage too (later
-    stages re-score the best so far); first_cov (6, 6): the first stage's covariance
+    stages re-score the best so far); first_cov (d, d): the first stage's covariance
     instead of diag(spread^2) (spread still floors the elite's covariance).
     """
     mu = np.asarray(centre, float).copy()
@@ -169,7 +170,7 @@ def global_search(score, centre: np.ndarray, spread: np.ndarray, rng: np.random.
     n_elite = max(8, int(round(elite * n)))
     best = None if incumbent is None else np.asarray(incumbent, float)
     for s, sigma in enumerate(sigmas):
-        x = mu + rng.standard_normal((n, 6)) @ L.T
+        x = mu + rng.standard_normal((n, len(mu))) @ L.T
         if best is not None:
             x[0] = best                      # the incumbent is re-scored at this sigma
         ll = np.asarray(score(x, sigma), float)

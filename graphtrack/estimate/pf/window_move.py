@@ -36,10 +36,25 @@ millimetres from the truth, with the truth's valley beyond the cloud's reach and
 likelihood flat (at its outlier floor) in between, so neither resampling nor a search
 drawn along the cloud finds it. When the search around the cloud gains too little, a
 second one draws its first stage over the prior instead, N(x_bar, diag(s^2 + floor^2))
-(:func:`window_target`), and its mode is taken when it beats the mean by more than
+(:func:`move_target`), and its mode is taken when it beats the mean by more than
 ``WIDE_MARGIN`` = 5 nats per frame of the window: the smoother's window challenge's
 margin for a distinct mode (docs/decisions/window-challenge.md), far above what one
 frame's detector noise gives.
+
+A detector can also err by the whole width of the shaft's image, by the same pixels on
+every frame: where a shaded shaft meets a background of its own brightness, the edges
+are found 1-3 px inside the limbs (docs/decisions/shaded-limbs.md), which the pixel
+model reads as a farther shaft, millimetres deeper. The factor graph carries this as
+its edge-bias state; the filter has one width offset w (px), by which every
+hypothesis's two limb lines are moved towards each other
+(:func:`graphtrack.geometry.lines.narrowed`). At each move, :func:`width_target`
+searches the window's joint mode of (x, w) with J gaining the prior term
+-1/2 (w / ``WIDTH_SIGMA``)^2 (1.5 px, the factor graph's width spread), and takes it,
+shifting the cloud and setting w, only when it beats what the pose alone gained by
+more than ``WIDTH_MARGIN`` = 3 nats: a likelihood-ratio test of one more parameter
+(2 ln Lambda > 6), so that unbiased edges keep w where it is (a free w would trade
+the width's depth information for nothing) and edges off by pixels on every frame,
+which cost tens of nats over the window at the true pose, get it.
 """
 from __future__ import annotations
 
@@ -58,38 +73,70 @@ STAGES = 6
 #: nats per window frame: the mode of the search over the prior must beat the cloud's mean
 #: by this much (module doc; None: no such search)
 WIDE_MARGIN: float | None = 5.0
+#: px: the prior spread of the edges' width offset the move estimates with the pose
+WIDTH_SIGMA = 1.5
+#: nats: the joint mode with the width offset free must beat the pose's alone by this much
+WIDTH_MARGIN = 3.0
 
 
 @dataclass
 class WindowMode:
-    """x (6,): the window's best hypothesis; gain: J(x) - J(x_bar) (nats)."""
+    """x (d,): the window's best hypothesis; gain: J(x) - J(x_bar) (nats)."""
 
     x: np.ndarray
     gain: float
 
 
-def window_target(loglik, frames: int, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndarray,
-                  prior_spread: np.ndarray, rng: np.random.Generator) -> np.ndarray | None:
-    """Where the move shifts the cloud's mean (module doc), or None: the mode near the cloud
+@dataclass
+class MoveTarget:
+    """x (6,): where the move shifts the cloud's mean, None: no move; gain: J(x) - J(x_bar)
+    of that x, or of the mode near the cloud when there is none (nats)."""
+
+    x: np.ndarray | None
+    gain: float
+
+
+def move_target(loglik, frames: int, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndarray,
+                prior_spread: np.ndarray, rng: np.random.Generator) -> MoveTarget:
+    """Where the move shifts the cloud's mean (module doc): the mode near the cloud
     (:func:`window_mode`) when it gains more than MIN_GAIN; else (``WIDE_MARGIN`` not None)
     the mode of a search whose first stage covers the prior when it gains more than
-    ``frames`` (the window's frames) x WIDE_MARGIN. Arguments as :func:`window_mode`'s."""
+    ``frames`` (the window's frames) x WIDE_MARGIN; else no move. Arguments as
+    :func:`window_mode`'s."""
     near = window_mode(loglik, x_bar, cloud_cov, floor, prior_spread, rng)
     if near.gain > MIN_GAIN:
-        return near.x
+        return MoveTarget(near.x, near.gain)
     if WIDE_MARGIN is None:
-        return None
+        return MoveTarget(None, near.gain)
     spread = np.asarray(prior_spread, float)
     wide = window_mode(loglik, x_bar, cloud_cov, floor, spread, rng, first_cov=np.diag(spread ** 2 + floor ** 2))
-    return wide.x if wide.gain > frames * WIDE_MARGIN else None
+    return MoveTarget(wide.x, wide.gain) if wide.gain > frames * WIDE_MARGIN else MoveTarget(None, near.gain)
+
+
+def width_target(loglik, x_bar: np.ndarray, width: float, cloud_cov: np.ndarray, floor: np.ndarray,
+                 prior_spread: np.ndarray, rng: np.random.Generator, gain: float) -> np.ndarray | None:
+    """(7,): the window's joint mode (x, w) of the pose and the edges' width offset w (px),
+    when it beats the pose alone clearly (module doc), else None.
+
+    loglik(X (m, 7)) -> (m,) the frames' summed log-likelihood with each hypothesis's limb
+    lines moved w towards each other; J gains the prior term -1/2 (w / WIDTH_SIGMA)^2.
+    The search is :func:`window_mode`'s near the cloud, from (x_bar, width), the first
+    stage's spread in w WIDTH_SIGMA; ``gain``: what the pose alone gained
+    (:func:`move_target`). Taken when its gain exceeds max(gain, 0) + WIDTH_MARGIN."""
+    X = np.append(np.asarray(x_bar, float), float(width))
+    sigma = np.append(np.asarray(prior_spread, float), WIDTH_SIGMA)
+    m = window_mode(loglik, X, np.pad(np.asarray(cloud_cov, float), (0, 1)), np.append(floor, WIDTH_SIGMA),
+                    sigma, rng)
+    return m.x if m.gain > max(gain, 0.0) + WIDTH_MARGIN else None
 
 
 def window_mode(loglik, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndarray,
                 prior_spread: np.ndarray, rng: np.random.Generator, n: int = 512, stages: int = STAGES,
                 elite: float = 0.03, first_cov: np.ndarray | None = None) -> WindowMode:
-    """The mode of J (module doc) near x_bar: loglik(x (m, 6)) -> (m,) the frames' summed
-    log-likelihood; cloud_cov (6, 6): the cloud's covariance; floor (6,): the first stage's
-    least spread per axis; prior_spread (6,): s. The search is
+    """The mode of J (module doc) near x_bar (d,) (the pose, d = 6, or with the width offset,
+    d = 7): loglik(x (m, d)) -> (m,) the frames' summed log-likelihood; cloud_cov (d, d):
+    the cloud's covariance; floor (d,): the first stage's least spread per axis;
+    prior_spread (d,): s. The search is
     :func:`graphtrack.estimate.startup.global_search` at one pixel sigma, the cloud's mean
     its incumbent from the first stage; ``first_cov``: the first stage's covariance instead
     of 9 cloud_cov + diag(floor^2)."""
@@ -102,7 +149,7 @@ def window_mode(loglik, x_bar: np.ndarray, cloud_cov: np.ndarray, floor: np.ndar
     sd = np.maximum(3.0 * np.sqrt(np.clip(np.diag(cloud_cov), 0.0, None)), floor)  # floors the elite's covariance
     J0 = float(loglik(x_bar[None])[0] - 0.5 * np.sum((x_bar / prior_spread) ** 2))
     res = global_search(lambda x, _sigma: loglik(x), x_bar, sd, rng, n=n, sigmas=(None,) * stages,
-                        elite=elite, prior_centre=np.zeros(6), prior_spread=prior_spread, incumbent=x_bar,
+                        elite=elite, prior_centre=np.zeros(len(x_bar)), prior_spread=prior_spread, incumbent=x_bar,
                         first_cov=first)
     if not np.isfinite(res.score):
         return WindowMode(x_bar, -np.inf)            # nothing scored: no mode, no move
