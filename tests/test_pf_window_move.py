@@ -236,6 +236,7 @@ def test_edges_found_inside_the_limbs_on_every_frame_set_the_width_offset():
         err[on] = np.linalg.norm(est.E[:3, 3] - SCENE.true_E(np.zeros(6))[:3, 3])
         if on:
             assert 1.0 < pf.width < 2.7      # 2 px, shrunk by its prior (1.5 px): 1.5 here
+            assert pf.report()["width_offset_px"] == round(pf.width, 3)    # metrics.json's estimator_report
         else:
             assert pf.width == 0.0
     assert err[True] < 0.5 * err[False]

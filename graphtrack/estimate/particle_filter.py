@@ -395,5 +395,6 @@ class ParticleFilter:
         return None
 
     def report(self) -> dict[str, int]:
-        """The re-initialisation policy's counts (:meth:`SearchInit.report`) and the window moves."""
-        return {**(self.search.report() if self.search is not None else {}), "window_moves": self.window_moves}
+        """The search's counts (:meth:`SearchInit.report`), the window moves, the final width offset (px)."""
+        return {**(self.search.report() if self.search is not None else {}), "window_moves": self.window_moves,
+                "width_offset_px": round(self.width, 3)}
