@@ -332,3 +332,19 @@ def test_detect_on_a_recording_without_frames(base, tmp_path, capsys):  # noqa: 
         p.unlink()
     code, err = run_cli(["detect", rec, "--out", tmp_path / "out", "--quiet"], capsys)
     assert code == 2 and re.search(r"rec/joints\.csv: no rows after the header", error_line(err)), err
+
+
+@pytest.mark.parametrize("ext", ["png", "jpg"])
+def test_a_still_image_named_video_is_refused(ext, base, tmp_path, capsys):  # noqa: F811
+    """A PNG or JPEG renamed video.mp4 opens in FFmpeg as a one-frame video: refused by name,
+    exit 2, instead of tracking its one frame and warning about the rest."""
+    rec = copy(base, "folder", tmp_path)
+    first = sorted((rec / "frames").iterdir())[0]
+    cv2.imwrite(str(rec / f"still.{ext}"), cv2.imread(str(first)))
+    for p in (rec / "frames").iterdir():
+        p.unlink()
+    (rec / "frames").rmdir()
+    (rec / f"still.{ext}").rename(rec / "video.mp4")
+    code, err = run_cli(["track", rec, "--out", tmp_path / "out", "--quiet"], capsys)
+    assert code == 2, err
+    assert re.search(r"video\.mp4: one (PNG|JPEG) image, not a video", error_line(err))

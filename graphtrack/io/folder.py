@@ -29,7 +29,7 @@ from graphtrack.io.decode import read_image_file
 from graphtrack.io.frame import Frame
 from graphtrack.io.joint_names import DVRK_PSM_JOINTS, missing_and_repeated, name_order
 from graphtrack.io.stamps import median_interval
-from graphtrack.io.video import open_video
+from graphtrack.io.video import open_video, still_image
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 #: s: the most the median interval between frames may be (the motion model's frame to frame)
@@ -231,11 +231,15 @@ class FolderSource:
         rows (the container's frame count): as with frames/, frames are never re-paired."""
         cap = open_video(self.video)
         opened = cap.isOpened()
-        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if opened else 0
+        n = max(int(cap.get(cv2.CAP_PROP_FRAME_COUNT)), 0) if opened else 0   # < 0: not listed
+        still = still_image(self.video, cap) if opened and n <= 1 else None
         cap.release()
         if not opened:   # here, before a run writes anything: not at its first frame
             raise InputError(f"{self.video}: cannot open the video (damaged, cut short, or not a video FFmpeg "
                              "decodes)")
+        if still:
+            raise InputError(f"{self.video}: one {still} image, not a video: put the images in frames/ "
+                             f"(frames/000000.{still.lower().replace('jpeg', 'jpg')}, ...) or encode them as video.mp4")
         self.video_frames = n
         if n > self.n_images:
             raise InputError(f"{self.video}: holds {n} frames but joints.csv has {self.n_images} rows "

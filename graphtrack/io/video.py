@@ -29,6 +29,20 @@ def open_video(path: str | Path) -> cv2.VideoCapture:
     return cv2.VideoCapture(str(path))
 
 
+#: the first bytes of the still images FFmpeg would open as a one-frame "video"
+STILL_IMAGES = {b"\x89PNG\r\n\x1a\n": "PNG", b"\xff\xd8\xff": "JPEG"}
+
+
+def still_image(path: str | Path, cap: cv2.VideoCapture) -> str | None:
+    """"PNG" or "JPEG" when the file at ``path``, opened as ``cap``, is one still image (its
+    first bytes are the format's signature and no second frame follows; a stream of many
+    JPEGs is a video), else None. Reads from ``cap``."""
+    with open(path, "rb") as f:
+        head = f.read(8)
+    kind = next((k for sig, k in STILL_IMAGES.items() if head.startswith(sig)), None)
+    return kind if kind is not None and not (cap.grab() and cap.grab()) else None
+
+
 def frame_rate(stamps, fallback: float = FALLBACK_FPS) -> float:
     """1 / median positive interval of ``stamps`` (s), within [1, 240] frames/s; else ``fallback``."""
     dt = median_interval(stamps)
