@@ -306,3 +306,24 @@ def test_end_on_threshold_is_the_constant():
         assert bool(project_cylinder_batch(p[:, None], c[:, None], 0.004, K)[3][0]) is expect
         assert limb_line_coefficients(np.eye(4), ShaftAxis.make(p, c, 0.004), line_matrix(K))[2] is expect
     assert COS_END_ON == pytest.approx(np.cos(np.radians(END_ON_DEG)))
+
+
+def test_inward_sides_point_into_the_shaft_image_foreshortened_views_included():
+    """``sides``: the sign of each limb line's residual at the projected axis point (the
+    pinhole projection of p0, an oracle apart from the limb planes), on every valid pose in
+    front of the camera, among them shafts pointing nearly at it, where the limbs converge
+    steeply (a side taken from either line's foot point, exact for parallel limbs, fails
+    there)."""
+    rng = np.random.default_rng(1)
+    p, c = camera_poses(rng, 20000)
+    K = np.array([[1000.0, 0, 640], [0, 990, 512], [0, 0, 1]])
+    rho, cos, sin, valid, inward = project_cylinder_batch(p.T, c.T, 0.004, K, sides=True)
+    tilt = np.degrees(np.arccos(np.clip(np.abs(np.sum(c * p, axis=1)) / np.linalg.norm(p, axis=1), 0, 1)))
+    ok = valid & (p[:, 2] > 0.01)
+    assert np.sum(ok & (tilt < 20)) > 100                        # steep views are among them
+    uv = (p @ K.T)[:, :2] / p[:, 2:3]                            # the axis point's pixel
+    res = cos * uv[:, 0] + sin * uv[:, 1] - rho                  # (2, N)
+    np.testing.assert_array_equal(np.sign(res)[:, ok], inward[:, ok])
+    # a line moved w along inward is w nearer the axis point's pixel
+    moved = (rho + 0.5 * inward) - rho
+    np.testing.assert_allclose(np.abs(res - moved)[:, ok], np.abs(res)[:, ok] - 0.5, atol=1e-9)

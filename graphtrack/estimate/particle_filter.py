@@ -30,7 +30,7 @@ started and re-initialised from the global search (:mod:`graphtrack.estimate.rei
 with ``window_move``, after the 8th and 16th frame it weighs since each start it is
 shifted whole to the mode of those frames near it or, by 5 nats a frame, over the prior,
 and with ``edge_width`` the same move sets the detected edges' width offset w (px; every
-hypothesis's limb lines moved w towards each other) when the frames' joint mode in (x, w)
+hypothesis's limb lines moved w towards the shaft's image) when the frames' joint mode in (x, w)
 beats the pose's alone by 3 nats (:mod:`graphtrack.estimate.pf.window_move`).
 
 Defaults (the dVRK tracker's motion model, a wider initial spread, roughening 0.5)
@@ -54,7 +54,6 @@ from graphtrack.estimate.pf.window_move import SCHEDULE, width_target, move_targ
 from graphtrack.estimate.reinit import SearchInit
 from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights, shrink_and_jitter,
                                             systematic_resample)
-from graphtrack.geometry.lines import narrowed
 from graphtrack.geometry.se3 import bw_to_matrix, matrix_to_bw, project_to_so3, so3_exp_batch
 from graphtrack.robot.features import base_features
 
@@ -252,9 +251,8 @@ class ParticleFilter:
         if observation is None:
             return ll
         if observation.has_shaft:
-            width = self.width if width is None else width
-            rho = narrowed(h.rho.T, h.cos.T, h.sin.T, width) if np.any(width) else h.rho.T
-            ll += om.shaft_loglik(observation, rho, lambda: h.theta.T, h.valid,
+            ll += om.shaft_loglik(observation, h.limb_rho(self.width if width is None else width),
+                                  lambda: h.theta.T, h.valid,
                                   _buffers=self._buffers if buffers is None else buffers, cos_sin=(h.cos.T, h.sin.T),
                                   **self.shaft_options)
         if self.use_markers and len(observation.markers):
@@ -346,11 +344,12 @@ class ParticleFilter:
         floor = self.init_std / 4
         found = move_target(loglik, len(frames), x_bar, cov, floor, prior, self._move_rng)
         x, width = found.x, self.width
+        outside = self.search.outside if self.search is not None else (lambda _x: False)
         if self.edge_width:
             joint = width_target(loglik, x_bar, self.width, cov, floor, prior, self._move_rng, found.gain)
-            if joint is not None:
+            if joint is not None and not outside(joint[:6]):
                 x, width = joint[:6], float(joint[6])
-        if x is None or (self.search is not None and self.search.outside(x)):
+        if x is None or outside(x):
             return False          # not clearly better, or outside the prior gate the search keeps
         self.x = self.x + (x - x_bar)
         self.width = width
@@ -394,7 +393,7 @@ class ParticleFilter:
     def finish(self):
         return None
 
-    def report(self) -> dict[str, int]:
+    def report(self) -> dict[str, float]:
         """The search's counts (:meth:`SearchInit.report`), the window moves, the final width offset (px)."""
         return {**(self.search.report() if self.search is not None else {}), "window_moves": self.window_moves,
                 "width_offset_px": round(self.width, 3)}

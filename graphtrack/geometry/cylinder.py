@@ -129,14 +129,19 @@ def contour_generators(p0: np.ndarray, d: np.ndarray, r) -> np.ndarray:
 
 # --- batched over N poses (the particle filter) ----------------------------------------------
 
-def project_cylinder_batch(p0: np.ndarray, d: np.ndarray, r: float, K: np.ndarray):
+def project_cylinder_batch(p0: np.ndarray, d: np.ndarray, r: float, K: np.ndarray, sides: bool = False):
     """:func:`project_cylinder` for N poses, component-major: p0 (3, N) axis points and
     UNIT directions d (3, N) (camera frame, m), one radius r (m).
 
     Same lines, line order and ``valid`` flag, each line returned as rho and its
     canonical unit normal (cos theta, sin theta) (sin theta >= 0, theta in
     [0, pi)), so that the pixel models need no trigonometry (theta:
-    :func:`line_angles`). Returns rho, cos, sin (2, N) (px, -, -) and valid (N,).
+    :func:`line_angles`). Returns rho, cos, sin (2, N) (px, -, -) and valid (N,);
+    with ``sides`` also inward (2, N): +-1, the sign of cos x + sin y - rho on the
+    shaft's side of each line. A limb plane's normal n = alpha u +- beta v has
+    n . X = alpha |m| = r > 0 at every point X of the axis, so the image of the axis in
+    front of the camera lies where (A, B, C) . (x, y, 1) > 0: inward is the sign of the
+    canonical scale k (exact under perspective, converging limbs included).
     """
     px, py, pz = p0
     dx, dy, dz = d
@@ -161,6 +166,8 @@ def project_cylinder_batch(p0: np.ndarray, d: np.ndarray, r: float, K: np.ndarra
     pn = np.sqrt(px * px + py * py + pz * pz)
     end_on = np.abs(pd) >= COS_END_ON * np.maximum(pn, 1e-300)
     valid = ~(inside | at_inf[0] | at_inf[1] | end_on | (pz <= 0))
+    if sides:
+        return -C * k, A * k, B * k, valid, np.sign(k)
     return -C * k, A * k, B * k, valid
 
 

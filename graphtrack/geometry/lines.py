@@ -102,16 +102,3 @@ def line_in_image(rho: float, theta: float, width: int, height: int, margin: flo
     i, j = np.unravel_index(np.argmax(d), d.shape)
     return cand[[i, j]]
 
-
-def narrowed(rho: np.ndarray, cos: np.ndarray, sin: np.ndarray, width) -> np.ndarray:
-    """The (N, 2) limb-line pairs cos x + sin y = rho of a shaft's image, each line moved
-    ``width`` px (scalar or (N,)) towards the other (> 0: a narrower image), as rho (N, 2).
-
-    Line i moves along its normal towards line j: rho_i + s_i width with
-    s_i = sign(rho_j cos(theta_i - theta_j) - rho_i), the side of line i on which line j's
-    foot point lies (exact for parallel lines, the limbs' case up to perspective)."""
-    rho = np.asarray(rho, float)
-    cd = cos[:, 0] * cos[:, 1] + sin[:, 0] * sin[:, 1]
-    with np.errstate(invalid="ignore"):      # a line at infinity (an invalid hypothesis) stays there
-        side = np.nan_to_num(np.sign(np.stack([rho[:, 1] * cd - rho[:, 0], rho[:, 0] * cd - rho[:, 1]], axis=1)))
-    return rho + side * np.reshape(np.asarray(width, float), (-1, 1))

@@ -87,7 +87,9 @@ class Hypotheses:
     the camera and, for markers on the shaft, on the side facing it;
     R (3, 3, N): R(w_n); end_u, end_v (N,): where the shaft visibly ends along its
     image, the projection of its end rim's front point
-    (:func:`graphtrack.geometry.shaft_end.front_point`), None without a shaft end.
+    (:func:`graphtrack.geometry.shaft_end.front_point`), None without a shaft end;
+    inward (2, N): +-1, the side of each limb line the shaft's image lies on
+    (:func:`graphtrack.geometry.cylinder.project_cylinder_batch`).
     ``theta`` (2, N) rad is computed when first read."""
 
     rho: np.ndarray
@@ -100,6 +102,7 @@ class Hypotheses:
     R: np.ndarray
     end_u: np.ndarray | None = None
     end_v: np.ndarray | None = None
+    inward: np.ndarray | None = None
     _theta: np.ndarray | None = None
 
     @property
@@ -107,6 +110,12 @@ class Hypotheses:
         if self._theta is None:
             self._theta = line_angles(self.cos, self.sin)
         return self._theta
+
+    def limb_rho(self, width=0.0) -> np.ndarray:
+        """rho (N, 2) of the limb lines moved ``width`` px (scalar or (N,)) towards the shaft's
+        image, rho_i + inward_i width: a detector that finds both edges that far inside
+        the limbs (> 0) or outside them (docs/decisions/pf-width-offset.md)."""
+        return (self.rho + self.inward * width).T if np.any(width) else self.rho.T
 
 
 def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray, extrinsic: np.ndarray | None = None,
@@ -129,7 +138,7 @@ def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray, extrinsic: np
         W = (Rc @ W.reshape(3, -1)).reshape(W.shape)
         b = Rc @ b + tc[:, None]
     p0 = W[:, 0] + b
-    rho, cos, sin, valid = project_cylinder_batch(p0, W[:, 1], r, K)
+    rho, cos, sin, valid, inward = project_cylinder_batch(p0, W[:, 1], r, K, sides=True)
     M = len(on_shaft)
     pts = W[:, 2:2 + M] + b[:, None, :]  # (3, M, N)
     front = pts[2] > pinhole.Z_MIN
@@ -137,7 +146,7 @@ def project(geometry: FrameGeometry, K: np.ndarray, x: np.ndarray, extrinsic: np
     nrm = W[:, 2 + M:2 + 2 * M]
     facing = (nrm * pts).sum(axis=0) < 0.0
     visible = front & (facing | ~on_shaft[:, None])
-    h = Hypotheses(rho, cos, sin, valid, u, v, visible, R)
+    h = Hypotheses(rho, cos, sin, valid, u, v, visible, R, inward=inward)
     if geometry.has_end:
         P = front_point((W[:, k - 1] + b).T, W[:, 1].T, r)       # (N, 3)
         h.end_u, h.end_v = pinhole.pixels(K, P[:, 0], P[:, 1], P[:, 2])   # behind the camera: NaN

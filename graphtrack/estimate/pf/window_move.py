@@ -46,8 +46,8 @@ every frame: where a shaded shaft meets a background of its own brightness, the 
 are found 1-3 px inside the limbs (docs/decisions/shaded-limbs.md), which the pixel
 model reads as a farther shaft, millimetres deeper. The factor graph carries this as
 its edge-bias state; the filter has one width offset w (px), by which every
-hypothesis's two limb lines are moved towards each other
-(:func:`graphtrack.geometry.lines.narrowed`). At each move, :func:`width_target`
+hypothesis's two limb lines are moved towards the shaft's image
+(:meth:`graphtrack.estimate.pf.projection.Hypotheses.limb_rho`). At each move, :func:`width_target`
 searches the window's joint mode of (x, w) with J gaining the prior term
 -1/2 (w / ``WIDTH_SIGMA``)^2 (1.5 px, the factor graph's width spread), and takes it,
 shifting the cloud and setting w, only when it beats what the pose alone gained by
@@ -119,7 +119,7 @@ def width_target(loglik, x_bar: np.ndarray, width: float, cloud_cov: np.ndarray,
     when it beats the pose alone clearly (module doc), else None.
 
     loglik(X (m, 7)) -> (m,) the frames' summed log-likelihood with each hypothesis's limb
-    lines moved w towards each other; J gains the prior term -1/2 (w / WIDTH_SIGMA)^2.
+    lines moved w towards the shaft's image; J gains the prior term -1/2 (w / WIDTH_SIGMA)^2.
     The search is :func:`window_mode`'s near the cloud, from (x_bar, width), the first
     stage's spread in w WIDTH_SIGMA; ``gain``: what the pose alone gained
     (:func:`move_target`). Taken when its gain exceeds max(gain, 0) + WIDTH_MARGIN."""
