@@ -40,3 +40,18 @@ def test_log_weights_are_robust():
     # nothing finite: uniform
     np.testing.assert_allclose(weights_from_log(np.array([np.nan, -np.inf])), [0.5, 0.5])
     assert effective_sample_size(np.full(8, 1 / 8)) == 8.0
+
+
+def test_kernel_shrinkage_keeps_the_clouds_mean_and_covariance():
+    """Liu & West: a^2 Sigma + h^2 Sigma = Sigma; with the cap far above the spread the
+    roughened cloud keeps its mean and covariance (up to sampling error); a cap below it
+    limits the jitter's std on that axis to the cap."""
+    from graphtrack.estimate.resampling import shrink_and_jitter
+    rng = np.random.default_rng(0)
+    mean, cov = np.array([1.0, -2.0]), np.array([[4.0, 1.2], [1.2, 1.0]])
+    x = rng.multivariate_normal(mean, cov, 200_000)
+    y = shrink_and_jitter(x, mean, cov, 0.5, np.full(2, 1e9), np.full(2, 1e-9), rng)
+    np.testing.assert_allclose(y.mean(axis=0), mean, atol=0.02)
+    np.testing.assert_allclose(np.cov(y.T), cov, atol=0.05)
+    z = shrink_and_jitter(np.tile(mean, (200_000, 1)), mean, cov, 0.5, np.array([0.1, 1e9]), np.full(2, 1e-9), rng)
+    np.testing.assert_allclose(z.std(axis=0), [0.1, 0.5 * 1.0], rtol=0.02)   # cap; h * sqrt(cov[1, 1])
