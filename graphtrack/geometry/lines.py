@@ -101,4 +101,3 @@ def line_in_image(rho: float, theta: float, width: int, height: int, margin: flo
     d = np.linalg.norm(cand[:, None] - cand[None], axis=-1)
     i, j = np.unravel_index(np.argmax(d), d.shape)
     return cand[[i, j]]
-

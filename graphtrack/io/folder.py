@@ -31,6 +31,8 @@ from graphtrack.io.joint_names import DVRK_PSM_JOINTS, missing_and_repeated, nam
 from graphtrack.io.stamps import median_interval
 from graphtrack.io.video import open_video, still_image
 
+#: why a video.mp4 that FFmpeg cannot open is refused
+UNOPENABLE_VIDEO = "cannot open the video (damaged, cut short, or not a video FFmpeg decodes)"
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"}
 #: s: the most the median interval between frames may be (the motion model's frame to frame)
 MAX_FRAME_INTERVAL_S = 10.0
@@ -235,8 +237,7 @@ class FolderSource:
         still = still_image(self.video, cap) if opened and n <= 1 else None
         cap.release()
         if not opened:   # here, before a run writes anything: not at its first frame
-            raise InputError(f"{self.video}: cannot open the video (damaged, cut short, or not a video FFmpeg "
-                             "decodes)")
+            raise InputError(f"{self.video}: {UNOPENABLE_VIDEO}")
         if still:
             raise InputError(f"{self.video}: one {still} image, not a video: put the images in frames/ "
                              f"(frames/000000.{still.lower().replace('jpeg', 'jpg')}, ...) or encode them as video.mp4")
@@ -267,7 +268,7 @@ class FolderSource:
             return
         cap = open_video(self.video)
         if not cap.isOpened():
-            raise InputError(f"{self.video}: cannot open the video (damaged, cut short, or not a video FFmpeg decodes)")
+            raise InputError(f"{self.video}: {UNOPENABLE_VIDEO}")   # opened before, not now
         try:
             ended = False
             for k in range(start):
