@@ -1,4 +1,5 @@
 """Observation models of the particle filter: the true pose must score best."""
+import itertools
 import numpy as np
 import pytest
 
@@ -189,12 +190,34 @@ def test_marker_hungarian_fallback_matches_enumeration():
     assert np.all(hung <= exact + 1e-9)  # one shared assignment can only be worse
 
 
+@pytest.mark.parametrize("loss", om.MARKER_LOSSES)
+def test_marker_loglik_is_the_best_assignment_of_marker_cost(loss):
+    # oracle: every injective pairing of 3 detections with 4 markers enumerated by hand,
+    # each pair costing marker_cost(min(d, gate)), a marker facing away the gate's cost
+    rng = np.random.default_rng(7)
+    proj = rng.uniform(0, 200, (30, 4, 2))
+    vis = rng.uniform(size=(30, 4)) > 0.2
+    det = np.concatenate([proj[0, :2] + [1.5, -2.0], [[500.0, 500.0]]])
+    gate = 50.0
+    cost = lambda d: float(om.marker_cost(np.float64(d), loss))   # noqa: E731
+    expect = np.empty(30)
+    for n in range(30):
+        d = np.linalg.norm(det[:, None] - proj[n][None], axis=2)
+        c = np.where(vis[n][None], np.minimum(d, gate), gate)
+        expect[n] = -min(sum(cost(c[k, j]) for k, j in enumerate(a))
+                         for a in itertools.permutations(range(4), 3))
+    np.testing.assert_allclose(om.marker_loglik(proj, vis, det, gate=gate, loss=loss), expect, rtol=1e-12)
+
+
 def test_marker_losses_and_pixel_effective_count():
     d = np.array([0.0, 2.0, 4.0, 10.0, 100.0])
     np.testing.assert_allclose(om.marker_cost(d, "laplace", gamma=0.15), 0.15 * d)
     # huber, sigma 2, k 2: quadratic up to 4 px, then linear with slope k / sigma
     np.testing.assert_allclose(om.marker_cost(d, "huber", sigma=2.0, huber_k=2.0), [0, 0.5, 2.0, 2 * 5 - 2, 2 * 50 - 2])
     np.testing.assert_allclose(om.marker_cost(d, "cauchy", sigma=2.0), np.log1p((d / 2.0) ** 2))
+    # laplace+cauchy: 2 px costs 0.3 + log 2, 10 px 1.5 + log 26
+    np.testing.assert_allclose(om.marker_cost(d, "laplace+cauchy", gamma=0.15, sigma=2.0),
+                               [0.0, 0.3 + np.log(2.0), 0.6 + np.log(5.0), 1.5 + np.log(26.0), 15.0 + np.log(2501.0)])
     with pytest.raises(ValueError):
         om.marker_cost(d, "nope")
     # gated: a far detection costs loss(gate) for every particle

@@ -23,8 +23,12 @@ the learned net's heatmap band, not moved onto the image's edge), as if their
 sigma were sigma / sqrt(b) inside the floor.
 Markers: log P = -sum_k cost(min(d_k, gate)), d_k (px) to the associated projected
 marker; cost "laplace" gamma d, "huber" u^2/2 up to u = k then k u - k^2/2 (u = d/s),
-"cauchy" log(1 + u^2); the best injective assignment per particle (all enumerated),
-markers facing away count as unmatched (cost gate).
+"cauchy" log(1 + u^2), "laplace+cauchy" gamma d + log(1 + u^2) (the particle filter's
+update: the paper's Laplace, whose constant pull out to the gate brings in a cloud still
+tens of px off, plus a core at the factor graph's marker scale s = 2 px, so that a marker a
+few px off costs what the detector's accuracy says; docs/decisions/pf-marker-core.md);
+the best injective assignment per particle (all enumerated), markers facing away count as
+unmatched (cost gate).
 Shaft end (``Observation.shaft_end``: the detected end p and the unit direction d
 along the shaft's image): s = d . (pi(P(E)) - p) px, P the end rim's front point
 (:mod:`graphtrack.geometry.shaft_end`),
@@ -66,12 +70,13 @@ SEARCH_PIXEL_EFFECTIVE_COUNT = 30.0  # the search's default (the smoother's; the
 #: worse at 1/4); docs/decisions/band-weight.md
 BAND_WEIGHT = 0.25
 SEARCH_BAND_WEIGHT = 1.0
-MARKER_GAMMA = 0.15    # 1/px, per marker (laplace loss only)
+MARKER_GAMMA = 0.15    # 1/px, per marker (the laplace losses)
 MARKER_GATE = 50.0     # px (paper: 20); docs/decisions/marker-gate.md
-MARKER_LOSS = "laplace"
-MARKER_SIGMA = 2.0     # px (huber / cauchy losses)
+MARKER_LOSS = "laplace"  # the start-up searches and the divergence monitor
+PF_MARKER_LOSS = "laplace+cauchy"   # the particle filter's update; docs/decisions/pf-marker-core.md
+MARKER_SIGMA = 2.0     # px (huber and the cauchy losses; the factor graph's marker sigma)
 MARKER_HUBER_K = 2.0   # Huber threshold in units of MARKER_SIGMA
-MARKER_LOSSES = ("laplace", "huber", "cauchy")
+MARKER_LOSSES = ("laplace", "huber", "cauchy", "laplace+cauchy")
 END_SIGMA = 2.0        # px along the shaft's image; docs/decisions/shaft-end.md
 END_OUTLIER_SIGMAS = 3.0
 
@@ -161,7 +166,21 @@ def marker_cost(d: np.ndarray, loss: str = MARKER_LOSS, gamma: float = MARKER_GA
         return np.where(u <= huber_k, 0.5 * u * u, huber_k * u - 0.5 * huber_k * huber_k)
     if loss == "cauchy":
         return np.log1p(u * u)
+    if loss == "laplace+cauchy":
+        return gamma * d + np.log1p(u * u)
     raise ValueError(f"unknown marker loss {loss!r} (choose from {', '.join(MARKER_LOSSES)})")
+
+
+def _gated_cost(d2: np.ndarray, loss: str, gamma: float, sigma: float, huber_k: float) -> np.ndarray:
+    """:func:`marker_cost` of the distances sqrt(d2), overwriting d2 (the particle filter's
+    loss without a temporary per operation: it runs on every particle, marker and detection)."""
+    if loss != "laplace+cauchy":
+        return marker_cost(np.sqrt(d2, out=d2), loss, gamma, sigma, huber_k)
+    c = np.sqrt(d2)
+    c *= gamma
+    d2 *= 1.0 / (sigma * sigma)
+    c += np.log1p(d2, out=d2)
+    return c
 
 
 def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarray,
@@ -171,7 +190,7 @@ def marker_loglik(projected: np.ndarray, visible: np.ndarray, detected: np.ndarr
     """Marker model: projected (N, M, 2) px, visible (N, M) bool, detected (D, 2) px.
 
     Per particle, min over assignments of sum_k c(min(d_k, gate)), negated, with
-    c the marker ``loss`` (laplace: gamma d; huber / cauchy: see marker_cost).
+    c the marker ``loss`` (laplace: gamma d; huber / cauchy / laplace+cauchy: see marker_cost).
     When the assignments are too many to enumerate (> MAX_ENUMERATED) the
     Hungarian assignment at particle ``estimate_index`` (default 0) is used
     for all particles. (:func:`marker_loglik_mn` takes the particle-last layout.)
@@ -191,11 +210,14 @@ def marker_loglik_mn(u: np.ndarray, v: np.ndarray, visible: np.ndarray, detected
     D = len(detected)
     if D == 0 or M == 0:
         return np.zeros(n)
-    dx = u[None] - detected[:, 0, None, None]
+    d2 = u[None] - detected[:, 0, None, None]           # (D, M, N), squared distances in place
     dy = v[None] - detected[:, 1, None, None]
-    dist = np.fmin(np.sqrt(dx * dx + dy * dy), gate)  # (D, M, N); fmin: NaN -> gate
-    dist = np.where(visible[None], dist, gate)
-    dist = marker_cost(dist, loss, gamma, sigma, huber_k)
+    d2 *= d2
+    dy *= dy
+    d2 += dy
+    np.fmin(d2, gate * gate, out=d2)                     # fmin: NaN -> gate
+    np.copyto(d2, gate * gate, where=~np.asarray(visible, bool)[None])
+    dist = _gated_cost(d2, loss, gamma, sigma, huber_k)
     gate = float(marker_cost(np.float64(gate), loss, gamma, sigma, huber_k))
     count = 1
     for i in range(min(M, D)):

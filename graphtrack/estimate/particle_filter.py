@@ -71,9 +71,9 @@ class ParticleFilter:
     pairing per particle; pixel_sigma (px), pixel_outlier_sigmas,
     pixel_weight: pixel models; band_weight: the weight of a heatmap band's
     pixels (Observation.bands; 1/4: twice the pixel sigma, docs/decisions/band-weight.md),
-    in the likelihood and the search; marker_gamma (1/px), marker_gate (px; times
-    gate_scale, the full-size pixels per detection pixel, which the tracking
-    pipeline sets to 1 / its detection scale, as for the smoother); window_move:
+    in the likelihood and the search; marker_loss (the update's; the search scores markers
+    by the paper's om.MARKER_LOSS), marker_gamma (1/px), marker_gate (px; times gate_scale,
+    the full-size px per detection px, set by the tracking pipeline as for the smoother); window_move:
     shift the cloud to the mode of the frames since its start after the 8th and 16th
     frame it weighs (:mod:`graphtrack.estimate.pf.window_move`; independent of
     ``search``, which only supplies its prior spread: ``EstimatorOptions(search=False)``,
@@ -104,7 +104,7 @@ class ParticleFilter:
                  gate_scale: float = 1.0,
                  pixel_effective_count: float = om.PIXEL_EFFECTIVE_COUNT,
                  band_weight: float = om.BAND_WEIGHT,
-                 marker_loss: str = om.MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
+                 marker_loss: str = om.PF_MARKER_LOSS, marker_sigma: float = om.MARKER_SIGMA,
                  marker_huber_k: float = om.MARKER_HUBER_K,
                  search: bool = SEARCH, search_std_b: float = SEARCH_STD_B, search_std_w: float = SEARCH_STD_W,
                  search_hypotheses: int = 2048, reinit_gap: int = 30,
@@ -151,7 +151,7 @@ class ParticleFilter:
         if search:
             self.search = SearchInit(ctx, (search_std_b, search_std_w), reinit_gap, gate_scale, markers,
                                      seed=seed, n=search_hypotheses, marker_gamma=marker_gamma, marker_gate=marker_gate,
-                                     marker_loss=marker_loss, marker_sigma=marker_sigma, marker_huber_k=marker_huber_k,
+                                     marker_loss=om.MARKER_LOSS, marker_sigma=marker_sigma, marker_huber_k=marker_huber_k,
                                      motion_cov=np.diag(self.motion_std ** 2), **self.shaft_options)
         self.reset()
 
