@@ -76,6 +76,7 @@ class LoopFilter:
     def step(self, frame, obs):
         from scipy.optimize import linear_sum_assignment
 
+        from graphtrack.estimate.observation_models import marker_cost
         from graphtrack.estimate.resampling import (effective_sample_size, normalize_log_weights,
                                                     systematic_resample)
         from graphtrack.geometry.lines import pixel_residual
@@ -102,9 +103,9 @@ class LoopFilter:
             ll[n] = -np.minimum(np.min(r * r, axis=0), floor).sum() / (2 * sig2)
             px = pf.ctx.camera.project_undistorted(cam.points)
             d = np.linalg.norm(px[:, None] - obs.markers[None], axis=-1)
-            d = np.minimum(d, pf.marker_gate)
-            i, j = linear_sum_assignment(d)
-            ll[n] += -pf.marker_gamma * d[i, j].sum()
+            c = marker_cost(np.minimum(d, pf.marker_gate), gamma=pf.marker_gamma, **pf.marker_options)
+            i, j = linear_sum_assignment(c)
+            ll[n] += -c[i, j].sum()
         pf.logw = normalize_log_weights(pf.logw + ll)
         w = np.exp(pf.logw)
         pf.x_mean = w @ pf.x

@@ -190,23 +190,32 @@ def test_marker_hungarian_fallback_matches_enumeration():
     assert np.all(hung <= exact + 1e-9)  # one shared assignment can only be worse
 
 
+@pytest.mark.parametrize("n_det", [3, 5])
 @pytest.mark.parametrize("loss", om.MARKER_LOSSES)
-def test_marker_loglik_is_the_best_assignment_of_marker_cost(loss):
-    # oracle: every injective pairing of 3 detections with 4 markers enumerated by hand,
-    # each pair costing marker_cost(min(d, gate)), a marker facing away the gate's cost
+def test_marker_loglik_is_the_best_assignment_of_marker_cost(loss, n_det):
+    # oracle: every injective pairing of the detections with 4 markers (a detection may stay
+    # unpaired) enumerated by hand, each pair costing marker_cost(min(d, gate)); a marker
+    # facing away, a NaN projection and an unpaired detection cost the gate's cost
     rng = np.random.default_rng(7)
     proj = rng.uniform(0, 200, (30, 4, 2))
+    proj[3, 1] = np.nan
     vis = rng.uniform(size=(30, 4)) > 0.2
-    det = np.concatenate([proj[0, :2] + [1.5, -2.0], [[500.0, 500.0]]])
+    det = np.concatenate([proj[0, :2] + [1.5, -2.0], rng.uniform(0, 200, (n_det - 3, 2)), [[500.0, 500.0]]])
     gate = 50.0
     cost = lambda d: float(om.marker_cost(np.float64(d), loss))   # noqa: E731
     expect = np.empty(30)
     for n in range(30):
         d = np.linalg.norm(det[:, None] - proj[n][None], axis=2)
-        c = np.where(vis[n][None], np.minimum(d, gate), gate)
-        expect[n] = -min(sum(cost(c[k, j]) for k, j in enumerate(a))
-                         for a in itertools.permutations(range(4), 3))
-    np.testing.assert_allclose(om.marker_loglik(proj, vis, det, gate=gate, loss=loss), expect, rtol=1e-12)
+        c = np.where(vis[n][None] & np.isfinite(d), np.minimum(d, gate), gate)
+        options = [a for a in itertools.product([None, 0, 1, 2, 3], repeat=n_det)
+                   if len([j for j in a if j is not None]) == len({j for j in a if j is not None})
+                   and sum(j is not None for j in a) == min(n_det, 4)]
+        expect[n] = -min(sum(cost(gate) if j is None else cost(c[k, j]) for k, j in enumerate(a)) for a in options)
+    u0, v0 = proj[..., 0].copy(), proj[..., 1].copy()
+    got = om.marker_loglik(proj, vis, det, gate=gate, loss=loss)
+    np.testing.assert_allclose(got, expect, rtol=1e-12)
+    np.testing.assert_array_equal(proj[..., 0], u0)   # the inputs are left as they were
+    np.testing.assert_array_equal(proj[..., 1], v0)
 
 
 def test_marker_losses_and_pixel_effective_count():
